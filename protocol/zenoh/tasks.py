@@ -1,0 +1,180 @@
+"""Task parameter spaces and cost-term definitions (part of the contract).
+
+Both the learner (which proposes theta and re-weights cost terms) and the agent (which turns
+theta into stiffnesses or a spline and integrates the cost terms) use these definitions.
+
+Costs follow Kuindersma, Grupen & Barto (2012):
+
+* ``bracing`` (T = 2 s, theta in [0, 1] = arm stiffness scale for ground contact)::
+
+      J = 10 * damage + 0.1 * int alpha_ddot^2 dt + 5 * int sum_arm I*V dt
+
+  ``damage`` is 1.0 if the hardware was damaged (elbow cable tension above its limit) and
+  0.0 otherwise. The paper prints ``h(x(T))`` as a factor; read literally an undamaged trial
+  would cost 0, so it is taken as an additive penalty of 10.
+
+* ``lifting`` (T = 6 s, theta = 4 waypoint joint positions [rad] + 3 segment durations [s])::
+
+      J = int x' Q x dt + 0.01 * int sum I*V dt,
+      x = [x_wheel, xdot_wheel, alpha_body, alphadot_body, h_error],
+      Q = diag(0.001, 0.001, 0.5, 0.5, 0.05)
+
+  Each diagonal entry of Q is the weight of one squared-state integral term.
+
+The agent reports each integral (unweighted) as a named term; the total cost is
+``sum(weights[name] * terms[name])`` (:meth:`TaskSpec.total_cost`), so past episodes can be
+re-weighted exactly when the risk context changes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+from .codec import NAME_PATTERN, as_float_map, as_float_tuple, as_str
+from .errors import InvalidField
+
+__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task"]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """The policy parameter space and cost terms of one task.
+
+    Attributes:
+        name: task name used on the wire (``"bracing"``, ``"lifting"``).
+        param_names: names of the ``dim`` policy parameters, in theta order.
+        lower, upper: box bounds of theta, shape ``(dim,)``, ``lower < upper``.
+        term_names: names of the cost integrals reported by the agent.
+        default_weights: weight per term; ``total = sum(w * term)``.
+        horizon_s: episode length T in simulated seconds.
+    """
+
+    name: str
+    param_names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    term_names: tuple[str, ...]
+    default_weights: Mapping[str, float]
+    horizon_s: float
+
+    def __post_init__(self) -> None:
+        as_str(self.name, "name", pattern=NAME_PATTERN)
+        n = len(self.param_names)
+        if n < 1 or len(set(self.param_names)) != n:
+            raise InvalidField("param_names", "must be non-empty and unique")
+        for i, p in enumerate(self.param_names):
+            as_str(p, f"param_names[{i}]", pattern=NAME_PATTERN)
+        lower = as_float_tuple(self.lower, "lower", length=n)
+        upper = as_float_tuple(self.upper, "upper", length=n)
+        if any(lo >= hi for lo, hi in zip(lower, upper)):
+            raise InvalidField("upper", "every upper bound must exceed its lower bound")
+        if len(set(self.term_names)) != len(self.term_names) or not self.term_names:
+            raise InvalidField("term_names", "must be non-empty and unique")
+        weights = as_float_map(
+            self.default_weights, "default_weights", lo=0.0,
+            names=self.term_names, required=self.term_names,
+        )
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "default_weights", weights)
+
+    @property
+    def dim(self) -> int:
+        """Number of policy parameters."""
+        return len(self.param_names)
+
+    def check_theta(self, theta: Any, field: str = "theta") -> tuple[float, ...]:
+        """Validate a parameter vector of shape ``(dim,)`` against the bounds.
+
+        Returns:
+            theta as a tuple of floats.
+
+        Raises:
+            InvalidField: wrong length, not finite, or outside ``[lower, upper]``.
+        """
+        values = as_float_tuple(theta, field, length=self.dim)
+        for i, (x, lo, hi) in enumerate(zip(values, self.lower, self.upper)):
+            if not lo <= x <= hi:
+                raise InvalidField(
+                    f"{field}[{i}]",
+                    f"{self.param_names[i]} = {x!r} outside [{lo!r}, {hi!r}] of task {self.name!r}",
+                )
+        return values
+
+    def check_weights(self, weights: Any, field: str = "weights") -> Mapping[str, float]:
+        """Validate a complete weight set: exactly the task's term names, finite, >= 0."""
+        return as_float_map(weights, field, lo=0.0, names=self.term_names, required=self.term_names)
+
+    def total_cost(
+        self, terms: Mapping[str, float], weights: Mapping[str, float] | None = None
+    ) -> float:
+        """``sum(weights[k] * terms[k])`` over the task's terms.
+
+        Args:
+            terms: one value per term name (extra names are an error).
+            weights: defaults to :attr:`default_weights`; names missing from a partial
+                weight mapping fall back to the defaults.
+        """
+        checked = as_float_map(terms, "cost_terms", names=self.term_names, required=self.term_names)
+        w = dict(self.default_weights)
+        if weights is not None:
+            w.update(as_float_map(weights, "weights", lo=0.0, names=self.term_names))
+        total = math.fsum(w[k] * checked[k] for k in self.term_names)
+        if not math.isfinite(total):
+            raise InvalidField("cost_terms", "weighted total is not finite")
+        return total
+
+
+_PI = math.pi
+
+#: Every task the contract knows, by wire name.
+TASKS: Mapping[str, TaskSpec] = MappingProxyType(
+    {
+        "bracing": TaskSpec(
+            name="bracing",
+            param_names=("arm_stiffness",),
+            lower=(0.0,),
+            upper=(1.0,),
+            term_names=("damage", "body_acc_sq", "arm_power"),
+            default_weights={"damage": 10.0, "body_acc_sq": 0.1, "arm_power": 5.0},
+            horizon_s=2.0,
+        ),
+        "lifting": TaskSpec(
+            name="lifting",
+            # Two intermediate arm waypoints (shoulder, elbow) and three segment durations:
+            # start -> waypoint 1 -> waypoint 2 -> goal pose.
+            param_names=(
+                "shoulder_1", "elbow_1", "shoulder_2", "elbow_2",
+                "duration_1", "duration_2", "duration_3",
+            ),
+            lower=(-_PI / 2, 0.0, -_PI / 2, 0.0, 0.2, 0.2, 0.2),
+            upper=(_PI, 2.5, _PI, 2.5, 2.0, 2.0, 2.0),
+            term_names=(
+                "x_wheel_sq", "xdot_wheel_sq", "alpha_sq", "alphadot_sq", "h_error_sq", "power",
+            ),
+            default_weights={
+                "x_wheel_sq": 0.001,
+                "xdot_wheel_sq": 0.001,
+                "alpha_sq": 0.5,
+                "alphadot_sq": 0.5,
+                "h_error_sq": 0.05,
+                "power": 0.01,
+            },
+            horizon_s=6.0,
+        ),
+    }
+)
+
+#: Wire names of the tasks, in a fixed order.
+TASK_NAMES: tuple[str, ...] = tuple(TASKS)
+
+
+def get_task(name: Any, field: str = "task") -> TaskSpec:
+    """The :class:`TaskSpec` called ``name``; :class:`InvalidField` if unknown."""
+    if not isinstance(name, str) or name not in TASKS:
+        raise InvalidField(field, f"unknown task {name!r}; expected one of {list(TASK_NAMES)}")
+    return TASKS[name]
