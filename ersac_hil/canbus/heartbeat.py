@@ -1,0 +1,53 @@
+"""The agent's heartbeat producer (node ``AGENT_NODE_ID``) on its own timer.
+
+python-can-remote 0.3's periodic tasks cannot change their data (NOTES.md), so the agent
+sends its heartbeat from a thread, reporting the state the caller gives.
+"""
+from __future__ import annotations
+
+import threading
+
+import canopen
+
+from protocol.can import cobid
+from protocol.can.bench import AGENT_NODE_ID, HEARTBEAT_PERIOD_MS
+
+OPERATIONAL = 5
+
+
+class HeartbeatProducer:
+    def __init__(self, network: canopen.Network, node_id: int = AGENT_NODE_ID,
+                 period_s: float = HEARTBEAT_PERIOD_MS / 1000.0, state: int = OPERATIONAL) -> None:
+        self._network, self._cob, self._period = network, cobid.heartbeat(node_id), period_s
+        self.state = state
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "HeartbeatProducer":
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="agent-heartbeat", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    def _run(self) -> None:
+        while True:
+            self._network.send_message(self._cob, [self.state])
+            if self._stop.wait(self._period):
+                return
+
+    def __enter__(self) -> "HeartbeatProducer":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -1,0 +1,4 @@
+"""CANopen nodes of the simulated bench."""
+from firmware_sim.nodes.base import NodeApplication, SlaveNode, StaticApplication
+
+__all__ = ["NodeApplication", "SlaveNode", "StaticApplication"]

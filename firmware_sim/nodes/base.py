@@ -1,0 +1,293 @@
+"""The firmware's CANopen stack: a CiA 301 slave built from a bench EDS file.
+
+``SlaveNode`` extends canopen's ``LocalNode`` with what the library leaves to the application
+(see NOTES.md): EDS value-range checks on SDO download (abort 0x0609003x), RPDO values kept
+as application state and applied at the next SYNC, TPDOs sampled from that state and sent
+after each SYNC, a heartbeat producer on our own timer (python-can-remote's periodic tasks
+cannot change data), boot-up after an NMT reset, and a consumer-heartbeat watchdog on the
+agent (0x1016) that puts the node in its safe state with EMCY 0x8130.
+
+What a device *does* lives in a ``NodeApplication`` (the simulator's controllers; or
+``StaticApplication``, the minimal reference behaviour the conformance suite also runs on).
+All callbacks run on the python-can Notifier thread or the node's watchdog thread: keep
+applications short and thread-safe.
+"""
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+
+import canopen
+from canopen.nmt import NmtSlave
+from canopen.sdo import SdoAbortedError
+
+from protocol.can import cobid
+from protocol.can.bench import AGENT_NODE_ID, Device, object_dictionary
+from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
+from protocol.can.sdo import check_range
+
+log = logging.getLogger(__name__)
+
+Key = tuple[int, int]
+OPERATIONAL, PRE_OPERATIONAL, INITIALISING = 5, 127, 0
+
+
+class NodeApplication:
+    """Hooks a device implements. The defaults are the reference (static) behaviour."""
+
+    def attach(self, node: "SlaveNode") -> None:
+        self.node = node
+
+    def on_commands(self, changed: dict[Key, int]) -> None:
+        """RPDO values that changed, applied at SYNC (raw integers)."""
+
+    def on_config(self, key: Key, value: int | float | str) -> None:
+        """An SDO download passed the range check; raise ``SdoAbortedError`` to refuse it."""
+
+    def sample(self) -> None:
+        """Refresh telemetry values (``node.set_value``) before the TPDOs go out."""
+
+    def on_nmt_state(self, state: str) -> None:
+        """NMT state changed (``"OPERATIONAL"``, ``"STOPPED"``, ...)."""
+
+    def on_heartbeat_lost(self) -> None:
+        """The agent's heartbeat stopped: go to the safe state (zero torque)."""
+
+    def on_reset(self) -> None:
+        """NMT reset node: back to power-on defaults."""
+
+
+class StaticApplication(NodeApplication):
+    """Reference behaviour: commands are stored, telemetry stays at its defaults, the status
+    word (0x2010) reports OPERATION_ENABLED and SAFE_STATE."""
+
+    def _status(self, set_bits: Status = Status(0), clear_bits: Status = Status(0)) -> None:
+        status = Status(int(self.node.value(Index.STATUS, 0)))
+        self.node.set_value(Index.STATUS, 0, int((status | set_bits) & ~clear_bits))
+
+    def on_nmt_state(self, state: str) -> None:
+        if state == "OPERATIONAL":
+            self._status(Status.OPERATION_ENABLED, Status.SAFE_STATE)
+        else:
+            self._status(clear_bits=Status.OPERATION_ENABLED)
+
+    def on_heartbeat_lost(self) -> None:
+        self._status(Status.SAFE_STATE | Status.FAULT, Status.OPERATION_ENABLED)
+
+
+class _Nmt(NmtSlave):
+    """NMT slave whose heartbeat is produced by ``SlaveNode``'s own timer."""
+
+    def __init__(self, node: "SlaveNode") -> None:
+        super().__init__(node.id, node)
+        self._node = node
+
+    def start_heartbeat(self, heartbeat_time_ms: int) -> None:  # own timer instead
+        self._heartbeat_time_ms = heartbeat_time_ms
+
+    def stop_heartbeat(self) -> None:
+        pass
+
+    def update_heartbeat(self) -> None:
+        pass
+
+    def on_command(self, can_id, data, timestamp):
+        old = self._state
+        cmd, target = struct.unpack_from("BB", data)
+        super().on_command(can_id, data, timestamp)
+        if target in (self.id, 0) and cmd in (0x81, 0x82):
+            self._node._after_reset(full=cmd == 0x81)
+        elif self._state != old:
+            self._node._state_changed()
+
+
+class SlaveNode(canopen.LocalNode):
+    """One bench device on the bus. ``connect(network)`` brings it up (boot-up message,
+    PRE-OPERATIONAL, heartbeat); ``close()`` takes it off again.
+
+    With ``own_sync=True`` the node reacts to SYNC itself (apply commands, sample, send);
+    a simulator that steps physics between those two calls passes ``False`` and calls
+    ``apply_commands()`` / ``transmit_tpdos()`` from its own SYNC handler.
+    """
+
+    def __init__(self, device: Device, app: NodeApplication | None = None, *, own_sync: bool = True) -> None:
+        super().__init__(device.node_id, object_dictionary(device))
+        self.device = device
+        self.app = app or StaticApplication()
+        self.own_sync = own_sync
+        self.nmt = _Nmt(self)
+        self._write_callbacks = [self._on_sdo_write]
+        self.add_read_callback(self._on_sdo_read)
+        self._lock = threading.RLock()
+        self._values: dict[Key, int] = {}
+        self._pending: dict[Key, int] = {}
+        self._stop = threading.Event()
+        self._watchdog: threading.Thread | None = None
+        self._agent_last_hb: float | None = None
+        self._hb_lost = False
+        self.sync_count = 0
+        self.app.attach(self)
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def connect(self, network: canopen.Network) -> None:
+        network.add_node(self)
+        self.tpdo.read(from_od=True)
+        self.rpdo.read(from_od=True)
+        for pdo_map in self.rpdo.map.values():
+            pdo_map.add_callback(self._on_rpdo)
+        network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
+        if self.own_sync:
+            network.subscribe(cobid.SYNC, self._on_sync)
+        self._boot()
+        self._stop.clear()
+        self._watchdog = threading.Thread(target=self._watch, name=f"node-{self.id:#x}", daemon=True)
+        self._watchdog.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._watchdog is not None:
+            self._watchdog.join(timeout=1.0)
+            self._watchdog = None
+        if self.has_network():
+            net = self.network
+            net.unsubscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
+            if self.own_sync:
+                net.unsubscribe(cobid.SYNC, self._on_sync)
+            for pdo_map in list(self.rpdo.map.values()) + list(self.tpdo.map.values()):
+                if pdo_map.enabled and pdo_map.cob_id:
+                    net.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
+            if self.id in net.nodes:
+                del net[self.id]
+            else:
+                self.remove_network()
+
+    def _boot(self) -> None:
+        self.nmt._state = INITIALISING
+        self.network.send_message(cobid.heartbeat(self.id), [0])  # boot-up
+        self.nmt._state = PRE_OPERATIONAL
+        self._state_changed()
+
+    def _after_reset(self, full: bool) -> None:
+        with self._lock:
+            self._pending.clear()
+            if full:
+                self.data_store.clear()
+                self._values.clear()
+                self.app.on_reset()
+            self._agent_last_hb = None
+            self._hb_lost = False
+        self._boot()
+
+    def _state_changed(self) -> None:
+        if self.nmt._state == OPERATIONAL:
+            self._hb_lost = False
+        self.app.on_nmt_state(self.nmt.state)
+
+    # -- application state ---------------------------------------------------------------
+    def set_value(self, index: int, subindex: int, raw: int) -> None:
+        """Telemetry/application value of an object (what SDO uploads and TPDOs carry)."""
+        self._values[(index, subindex)] = raw
+
+    def value(self, index: int, subindex: int = 0) -> int | float | str:
+        """Current value: application state, else downloaded data, else the EDS default."""
+        key = (index, subindex)
+        if key in self._values:
+            return self._values[key]
+        od = self._find_object(index, subindex)
+        return od.decode_raw(self.get_data(index, subindex))
+
+    @property
+    def operational(self) -> bool:
+        return self.nmt._state == OPERATIONAL
+
+    def emergency(self, code: EmcyCode, info: bytes = b"") -> None:
+        """Send EMCY ``code`` and keep the error register (0x1001) in step."""
+        register = int(EMCY_REGISTER[code])
+        self.set_value(Index.ERROR_REGISTER, 0, register)
+        self.emcy.send(int(code), register, info[:5].ljust(5, b"\0"))
+
+    # -- SYNC-driven cycle -----------------------------------------------------------------
+    def apply_commands(self) -> None:
+        """Make the RPDO values received since the last SYNC take effect."""
+        with self._lock:
+            pending, self._pending = self._pending, {}
+            if not self.operational or not pending:
+                return
+            changed = {k: v for k, v in pending.items() if self._values.get(k) != v}
+            self._values.update(pending)
+        if changed:
+            self.app.on_commands(changed)
+
+    def transmit_tpdos(self) -> None:
+        """Sample the application and send every synchronous TPDO (operational only)."""
+        if not self.operational:
+            return
+        self.sync_count += 1
+        with self._lock:
+            self.app.sample()
+            for pdo_map in self.tpdo.map.values():
+                if not pdo_map.enabled or not (1 <= (pdo_map.trans_type or 0) <= 240):
+                    continue
+                if self.sync_count % pdo_map.trans_type:
+                    continue
+                for var in pdo_map.map:
+                    var.raw = self.value(var.index, var.subindex)
+                pdo_map.transmit()
+
+    def _on_sync(self, can_id, data, timestamp) -> None:
+        self.apply_commands()
+        self.transmit_tpdos()
+
+    def _on_rpdo(self, pdo_map) -> None:
+        if not self.operational:
+            return
+        with self._lock:
+            for var in pdo_map.map:
+                self._pending[(var.index, var.subindex)] = var.raw
+
+    # -- SDO server hooks ------------------------------------------------------------------
+    def _on_sdo_read(self, index: int, subindex: int, od) -> int | None:
+        return self._values.get((index, subindex))
+
+    def _on_sdo_write(self, index: int, subindex: int, od, data: bytes) -> None:
+        value = check_range(od, data)
+        if value is None:
+            value = od.decode_raw(data)
+        self.app.on_config((index, subindex), value)
+
+    # -- heartbeat producer and consumer ---------------------------------------------------
+    def _on_agent_heartbeat(self, can_id, data, timestamp) -> None:
+        self._agent_last_hb = time.monotonic()
+
+    def consumer_timeout(self) -> float:
+        """Seconds of agent silence tolerated (0x1016 sub1, 0 = not monitored)."""
+        try:
+            word = int(self.value(Index.CONSUMER_HEARTBEAT, 1))
+        except (KeyError, SdoAbortedError):
+            return 0.0
+        if (word >> 16) & 0x7F != AGENT_NODE_ID:
+            return 0.0
+        return (word & 0xFFFF) / 1000.0
+
+    def _watch(self) -> None:
+        next_hb = time.monotonic()
+        while not self._stop.wait(0.005):
+            now = time.monotonic()
+            period = int(self.value(Index.PRODUCER_HEARTBEAT, 0)) / 1000.0
+            if period > 0 and now >= next_hb:
+                try:
+                    self.network.send_message(cobid.heartbeat(self.id), [self.nmt._state])
+                except Exception as exc:  # bus gone: the owner is shutting us down
+                    log.debug("node %#x heartbeat not sent: %s", self.id, exc)
+                next_hb = now + period
+            timeout = self.consumer_timeout()
+            last = self._agent_last_hb
+            if timeout and last is not None and not self._hb_lost and now - last > timeout:
+                self._hb_lost = True
+                log.warning("node %#x: agent heartbeat lost (%.0f ms), safe state", self.id,
+                            1000 * (now - last))
+                self.app.on_heartbeat_lost()
+                self.emergency(EmcyCode.HEARTBEAT_LOST)
+

@@ -1,0 +1,90 @@
+"""How either side reaches the CAN bus: a typed ``BusConfig`` and one ``open_bus`` factory.
+
+Backends are plain python-can configurations, never hard-wired:
+
+* ``socketcan`` on ``vcan0``/``can0`` where the kernel has SocketCAN (the real robot);
+* ``remote`` to a loopback hub (``ersac-hil bus``, python-can-remote on 127.0.0.1) on
+  machines without SocketCAN, channel ``ws://127.0.0.1:PORT/``;
+* ``virtual`` for single-process tests.
+
+``resolve_bus_config`` honours python-can's own resolution (``can.util.load_config``:
+environment ``CAN_INTERFACE``/``CAN_CHANNEL``/``CAN_BITRATE`` and ``~/.canrc``) for whatever
+the caller leaves unset. ``open_bus`` creates the bus object and nothing else: no threads are
+started here, the caller owns (and must ``shutdown()``) what it gets.
+"""
+from __future__ import annotations
+
+import ipaddress
+from dataclasses import dataclass, field
+from urllib.parse import urlparse
+
+import can
+
+DEFAULT_BITRATE = 1_000_000
+
+
+class BusConfigError(ValueError):
+    """The bus configuration is incomplete or not allowed (e.g. a non-loopback hub)."""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    interface: str
+    channel: str
+    bitrate: int = DEFAULT_BITRATE
+    options: tuple[tuple[str, str], ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        if not self.interface or not self.channel:
+            raise BusConfigError("a CAN bus needs an interface and a channel")
+        if self.bitrate <= 0:
+            raise BusConfigError(f"bitrate must be positive, got {self.bitrate}")
+        if self.interface == "remote":
+            _check_loopback_url(self.channel)
+        if self.interface == "udp_multicast":
+            raise BusConfigError("udp_multicast is not allowed: this project stays on loopback")
+
+    def kwargs(self) -> dict:
+        kw = {"interface": self.interface, "channel": self.channel, **dict(self.options)}
+        if self.interface not in ("virtual", "remote"):
+            kw["bitrate"] = self.bitrate
+        if self.interface == "virtual":
+            kw.setdefault("receive_own_messages", False)
+        return kw
+
+    def describe(self) -> str:
+        return f"{self.interface}:{self.channel}"
+
+
+def _check_loopback_url(url: str) -> None:
+    parsed = urlparse(url)
+    if parsed.scheme not in ("ws", "wss") or not parsed.hostname:
+        raise BusConfigError(f"remote channel must be ws://127.0.0.1:PORT/, got {url!r}")
+    host = parsed.hostname
+    try:
+        loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if not loopback:
+        raise BusConfigError(f"remote CAN hub must be on loopback, got host {host!r}")
+
+
+def resolve_bus_config(interface: str | None = None, channel: str | None = None,
+                       bitrate: int | None = None) -> BusConfig:
+    """Fill what the caller left ``None`` from python-can's configuration resolution."""
+    given = {k: v for k, v in (("interface", interface), ("channel", channel),
+                               ("bitrate", bitrate)) if v is not None}
+    try:
+        resolved = can.util.load_config(config=given)
+    except can.CanInterfaceNotImplementedError as exc:
+        raise BusConfigError(str(exc)) from exc
+    if not resolved.get("interface") or resolved.get("channel") in (None, ""):
+        raise BusConfigError("no CAN interface/channel given and none configured "
+                             "(CAN_INTERFACE/CAN_CHANNEL or ~/.canrc)")
+    return BusConfig(str(resolved["interface"]), str(resolved["channel"]),
+                     int(resolved.get("bitrate") or DEFAULT_BITRATE))
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    """Open the python-can bus described by ``config`` (caller shuts it down)."""
+    return can.Bus(**config.kwargs())

@@ -1,0 +1,76 @@
+"""PDO maps of the bench, read from the EDS files (never restated in code).
+
+``pdo_maps(device)`` gives every RPDO/TPDO of a device as ``PdoSpec``: its COB-ID,
+transmission type and mapped entries (index, sub-index, bit length, name). The agent, the
+simulator nodes, the bus-load budget and docs/protocol.md all derive from this.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from canopen.objectdictionary import ODRecord, ODVariable
+
+from protocol.can.bench import BENCH, Device, object_dictionary
+
+Direction = Literal["tpdo", "rpdo"]
+
+
+@dataclass(frozen=True)
+class PdoEntry:
+    index: int
+    subindex: int
+    bits: int
+    name: str
+
+
+@dataclass(frozen=True)
+class PdoSpec:
+    """One PDO of one device. ``direction`` is seen from the device: a TPDO is transmitted by
+    the device (telemetry), an RPDO received (commands). ``transmission_type`` 1..240 means
+    synchronous, sent/applied every ``transmission_type``-th SYNC."""
+    device: str
+    node_id: int
+    direction: Direction
+    number: int
+    cob_id: int
+    transmission_type: int
+    entries: tuple[PdoEntry, ...]
+
+    @property
+    def length(self) -> int:
+        """Data bytes in the frame."""
+        return (sum(e.bits for e in self.entries) + 7) // 8
+
+    @property
+    def synchronous(self) -> bool:
+        return 1 <= self.transmission_type <= 240
+
+
+def _value(var: ODVariable) -> int:
+    return int(var.value if var.value is not None else var.default)
+
+
+def pdo_maps(dev: Device) -> tuple[PdoSpec, ...]:
+    od = object_dictionary(dev)
+    specs: list[PdoSpec] = []
+    for direction, comm_base, map_base in (("rpdo", 0x1400, 0x1600), ("tpdo", 0x1800, 0x1A00)):
+        for n in range(512):
+            if comm_base + n not in od:
+                break
+            comm: ODRecord = od[comm_base + n]
+            mapping: ODRecord = od[map_base + n]
+            entries = []
+            for sub in range(1, _value(mapping[0]) + 1):
+                word = _value(mapping[sub])
+                index, subindex, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
+                target = od[index] if subindex == 0 and isinstance(od[index], ODVariable) else od[index][subindex]
+                entries.append(PdoEntry(index, subindex, bits, target.name))
+            specs.append(PdoSpec(dev.name, dev.node_id, direction, n + 1,
+                                 _value(comm[1]) & 0x7FF, _value(comm[2]), tuple(entries)))
+    return tuple(specs)
+
+
+def cyclic_pdos(devices: tuple[Device, ...] = BENCH) -> tuple[PdoSpec, ...]:
+    """Every synchronous PDO of the given devices (the 200 Hz schedule, without SYNC)."""
+    return tuple(p for d in devices for p in pdo_maps(d) if p.synchronous)

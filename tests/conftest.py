@@ -1,0 +1,34 @@
+"""Shared fixtures: CAN backends available on this machine.
+
+``can_backend`` is parametrised over every backend; each test gets a fresh channel (a new
+virtual channel name, a new loopback hub) so tests never hear each other.
+"""
+from __future__ import annotations
+
+import os
+import uuid
+
+import pytest
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from protocol.can.busconfig import BusConfig  # noqa: E402
+
+BACKENDS = ("virtual", "remote", "socketcan")
+
+
+@pytest.fixture(params=BACKENDS)
+def can_backend(request):
+    """A ``BusConfig`` every participant of the test opens its own bus with."""
+    kind = request.param
+    if kind == "virtual":
+        yield BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    elif kind == "remote":
+        with LoopbackHub() as hub:
+            yield hub.bus_config
+    else:
+        status = vcan_status("vcan0")
+        if not status.available:
+            pytest.skip(f"socketcan/vcan0 unavailable: {status.reason}")
+        yield BusConfig("socketcan", "vcan0")
