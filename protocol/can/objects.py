@@ -99,9 +99,12 @@ class Scale:
         """SI value -> saturated integer count. NaN is refused (ValueError)."""
         if math.isnan(value):
             raise ValueError("cannot encode NaN")
-        raw = round(value / self.factor) if math.isfinite(value) else (
-            self.raw_max if value > 0 else self.raw_min)
-        return max(self.raw_min, min(self.raw_max, raw))
+        scaled = value / self.factor
+        if scaled >= self.raw_max:
+            return self.raw_max
+        if scaled <= self.raw_min:
+            return self.raw_min
+        return round(scaled)
 
     def from_raw(self, raw: int) -> float:
         return raw * self.factor

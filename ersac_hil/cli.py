@@ -1,0 +1,99 @@
+"""``ersac-hil``: one console script, one subcommand per service or client.
+
+cli (argparse) -> typed config -> service lifecycle (``ersac_hil.lifecycle.serve``).
+``sim`` runs the firmware simulator in its own process (``python -m firmware_sim``): the
+agent's package never imports the simulator.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+
+from protocol.can.busload import BUDGET_PERCENT, bus_load, format_report
+
+
+def _bus_load(args: argparse.Namespace) -> int:
+    load = bus_load(args.rate, args.bitrate)
+    print(format_report(load))
+    return 0 if load.percent <= BUDGET_PERCENT or not args.check else 1
+
+
+class _HubService:
+    def __init__(self, port: int, monitor: bool) -> None:
+        self.port, self.monitor, self.hub, self._mon = port, monitor, None, None
+
+    def start(self) -> None:
+        from ersac_hil.canbus.hub import LoopbackHub
+        self.hub = LoopbackHub(self.port)
+        print(f"CAN hub: {self.hub.url}", flush=True)
+        if self.monitor:
+            from ersac_hil.canbus.monitor import BusMonitor
+            self._mon = BusMonitor(self.hub.bus_config).start()
+
+    def stop(self) -> None:
+        if self._mon is not None:
+            self._mon.stop()
+        if self.hub is not None:
+            self.hub.close()
+        print("CAN hub stopped", flush=True)
+
+
+def _bus(args: argparse.Namespace) -> int:
+    from ersac_hil.lifecycle import serve
+    return serve(_HubService(args.port, args.monitor))
+
+
+def _sim(args: argparse.Namespace) -> int:
+    os.execv(sys.executable, [sys.executable, "-m", "firmware_sim", *args.sim_args])
+    return 1  # not reached
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ersac-hil", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="count", default=0)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("bus-load", help="worst-case bus load of the cyclic PDO schedule")
+    p.add_argument("--rate", type=float, default=200.0, help="SYNC rate in Hz (default 200)")
+    p.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
+    p.add_argument("--check", action="store_true", help=f"exit 1 above {BUDGET_PERCENT:g} %%")
+    p.set_defaults(func=_bus_load)
+
+    p = sub.add_parser("bus", help="loopback CAN hub (python-can-remote on 127.0.0.1)")
+    p.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
+    p.add_argument("--monitor", action="store_true", help="print every frame that crosses the hub")
+    p.set_defaults(func=_bus)
+
+    p = sub.add_parser("sim", help="firmware simulator (python -m firmware_sim ...)", add_help=False)
+    p.add_argument("sim_args", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_sim)
+
+    for register in _extensions():
+        register(sub)
+    return parser
+
+
+def _extensions():
+    """Subcommands contributed by other modules of this package (agent, daemon, demo...)."""
+    import importlib
+    for name in ("ersac_hil.agent.cli", "ersac_hil.daemon.cli", "ersac_hil.demo"):
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name and name.startswith(exc.name):
+                continue
+            raise
+        yield module.register
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
