@@ -56,7 +56,7 @@ __all__ = [
 KAPPA_MIN, KAPPA_MAX = -10.0, 10.0
 LEARNER_STATUSES: tuple[str, ...] = ("idle", "running", "paused", "stopped", "failed")
 #: Most points one critic query or reply may hold.
-MAX_CRITIC_POINTS = 10_000
+MAX_CRITIC_POINTS = 3_000
 #: Points per dimension of a critic grid query.
 GRID_MIN, GRID_MAX = 2, 1001
 
