@@ -1,0 +1,534 @@
+"""The daemon's embedded store: SQLite in WAL mode, one file per deployment.
+
+Tables (schema version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``)::
+
+    runs      one learning run: robot, task, seed, learner settings (JSON), status
+    episodes  one row per *attempt*: the request (base theta, perturbation z, executed theta,
+              scenario seed), the outcome (status, cost terms, cost under the current
+              weights, failure flags, telemetry summary, fault counters) and timestamps.
+              ``idx`` is the learner episode the attempt serves; at most one "ok" attempt
+              per (run, idx) (a partial unique index enforces it).
+    updates   one row per learner update (= per ok episode, same idx): theta before/after,
+              the cost told, J~(theta), r~(theta), r~(theta+z), kappa, step size and the
+              learner's resumable state after the update (RNG state...; JSON).
+    changes   kappa / weights / theta (adopted selection) changes with their source and the
+              number of updates done when they took effect.
+
+Write rules: an attempt is inserted as ``pending`` (committed) before its query is sent; a
+successful episode and its update are committed in ONE transaction before the next episode
+starts; a failed attempt is committed with its status and is never told to the learner.
+A weights change and the re-costing of every stored ok episode are one transaction.
+
+One connection shared by the daemon's threads, serialised by a lock. JSON columns hold
+floats as ``repr`` text, so values round-trip exactly.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+import threading
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from protocol.zenoh import STATUSES, EpisodeResult, get_task
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "RUN_STATUSES",
+    "ATTEMPT_STATUSES",
+    "CHANGE_KINDS",
+    "StoreError",
+    "RunNotFound",
+    "Store",
+    "RunRecord",
+    "EpisodeRecord",
+    "UpdateRecord",
+    "ChangeRecord",
+]
+
+SCHEMA_VERSION = 1
+RUN_STATUSES: tuple[str, ...] = ("running", "finished", "failed")
+#: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own:
+#: pending (sent, no answer yet), timeout (no reply in time), refused (agent reply_err),
+#: interrupted (the daemon stopped or died while the attempt was pending).
+ATTEMPT_STATUSES: tuple[str, ...] = (*STATUSES, "pending", "timeout", "refused", "interrupted")
+CHANGE_KINDS: tuple[str, ...] = ("kappa", "weights", "theta")
+
+_SCHEMA = f"""
+CREATE TABLE runs (
+    run_id      TEXT PRIMARY KEY,
+    robot       TEXT NOT NULL,
+    task        TEXT NOT NULL,
+    seed        INTEGER NOT NULL,
+    settings    TEXT NOT NULL,
+    status      TEXT NOT NULL CHECK (status IN {RUN_STATUSES!r}),
+    detail      TEXT NOT NULL DEFAULT '',
+    created_s   REAL NOT NULL,
+    updated_s   REAL NOT NULL
+);
+CREATE TABLE episodes (
+    seq         INTEGER PRIMARY KEY AUTOINCREMENT,
+    run_id      TEXT NOT NULL REFERENCES runs(run_id),
+    episode_id  TEXT NOT NULL UNIQUE,
+    idx         INTEGER NOT NULL CHECK (idx >= 0),
+    attempt     INTEGER NOT NULL CHECK (attempt >= 0),
+    base_theta  TEXT NOT NULL,
+    z           TEXT NOT NULL,
+    theta       TEXT NOT NULL,
+    seed        INTEGER NOT NULL,
+    status      TEXT NOT NULL CHECK (status IN {ATTEMPT_STATUSES!r}),
+    cost_terms  TEXT,
+    cost        REAL,
+    agent_cost  REAL,
+    failures    TEXT,
+    telemetry   TEXT,
+    fault_counts TEXT,
+    duration_s  REAL,
+    wall_s      REAL,
+    detail      TEXT NOT NULL DEFAULT '',
+    requested_s REAL NOT NULL,
+    finished_s  REAL,
+    UNIQUE (run_id, idx, attempt)
+);
+CREATE UNIQUE INDEX episodes_one_ok ON episodes(run_id, idx) WHERE status = 'ok';
+CREATE TABLE updates (
+    run_id      TEXT NOT NULL REFERENCES runs(run_id),
+    idx         INTEGER NOT NULL,
+    episode_id  TEXT NOT NULL UNIQUE REFERENCES episodes(episode_id),
+    theta_before TEXT NOT NULL,
+    theta_after TEXT NOT NULL,
+    cost        REAL NOT NULL,
+    J           REAL NOT NULL,
+    r           REAL NOT NULL,
+    r_z         REAL NOT NULL,
+    kappa       REAL NOT NULL,
+    lr          REAL NOT NULL,
+    state       TEXT NOT NULL,
+    stamp_s     REAL NOT NULL,
+    PRIMARY KEY (run_id, idx)
+);
+CREATE TABLE changes (
+    seq         INTEGER PRIMARY KEY AUTOINCREMENT,
+    run_id      TEXT NOT NULL REFERENCES runs(run_id),
+    kind        TEXT NOT NULL CHECK (kind IN {CHANGE_KINDS!r}),
+    value       TEXT NOT NULL,
+    source      TEXT NOT NULL,
+    n_updates   INTEGER NOT NULL,
+    stamp_s     REAL NOT NULL
+);
+CREATE INDEX episodes_run ON episodes(run_id, idx, attempt);
+CREATE INDEX changes_run ON changes(run_id, kind, seq);
+PRAGMA user_version = {SCHEMA_VERSION};
+"""
+
+
+class StoreError(RuntimeError):
+    """The store cannot do what was asked (wrong schema, inconsistent write...)."""
+
+
+class RunNotFound(StoreError):
+    """No run with that id."""
+
+
+def _dumps(value: Any) -> str:
+    return json.dumps(value, allow_nan=False, separators=(",", ":"))
+
+
+def _loads(text: str | None) -> Any:
+    return None if text is None else json.loads(text)
+
+
+def _vec(values: Sequence[float]) -> str:
+    return _dumps([float(v) for v in values])
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One learning run. ``settings``: the learner fields of ``DaemonConfig`` (JSON)."""
+
+    run_id: str
+    robot: str
+    task: str
+    seed: int
+    settings: Mapping[str, Any]
+    status: str
+    detail: str
+    created_s: float
+    updated_s: float
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One attempt. Vectors are tuples of shape ``(dim,)``; outcome fields are ``None``
+    while pending. ``cost`` is the cost of an ok episode under the run's current weights."""
+
+    seq: int
+    run_id: str
+    episode_id: str
+    idx: int
+    attempt: int
+    base_theta: tuple[float, ...]
+    z: tuple[float, ...]
+    theta: tuple[float, ...]
+    seed: int
+    status: str
+    cost_terms: Mapping[str, float] | None
+    cost: float | None
+    agent_cost: float | None
+    failures: Mapping[str, bool] | None
+    telemetry: Mapping[str, float] | None
+    fault_counts: Mapping[str, int] | None
+    duration_s: float | None
+    wall_s: float | None
+    detail: str
+    requested_s: float
+    finished_s: float | None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass(frozen=True)
+class UpdateRecord:
+    """One learner update (after ok episode ``idx``). ``state``: learner state after it."""
+
+    run_id: str
+    idx: int
+    episode_id: str
+    theta_before: tuple[float, ...]
+    theta_after: tuple[float, ...]
+    cost: float
+    J: float
+    r: float
+    r_z: float
+    kappa: float
+    lr: float
+    state: Mapping[str, Any]
+    stamp_s: float
+
+
+@dataclass(frozen=True)
+class ChangeRecord:
+    """A kappa / weights / theta change; ``n_updates``: updates done when it took effect."""
+
+    seq: int
+    run_id: str
+    kind: str
+    value: Any
+    source: str
+    n_updates: int
+    stamp_s: float
+
+
+def _tuple(text: str) -> tuple[float, ...]:
+    return tuple(float(v) for v in json.loads(text))
+
+
+def _run(row: sqlite3.Row) -> RunRecord:
+    return RunRecord(row["run_id"], row["robot"], row["task"], int(row["seed"]),
+                     json.loads(row["settings"]), row["status"], row["detail"],
+                     row["created_s"], row["updated_s"])
+
+
+def _episode(row: sqlite3.Row) -> EpisodeRecord:
+    return EpisodeRecord(
+        row["seq"], row["run_id"], row["episode_id"], row["idx"], row["attempt"],
+        _tuple(row["base_theta"]), _tuple(row["z"]), _tuple(row["theta"]), int(row["seed"]),
+        row["status"], _loads(row["cost_terms"]), row["cost"], row["agent_cost"],
+        _loads(row["failures"]), _loads(row["telemetry"]), _loads(row["fault_counts"]),
+        row["duration_s"], row["wall_s"], row["detail"], row["requested_s"], row["finished_s"],
+    )
+
+
+def _update(row: sqlite3.Row) -> UpdateRecord:
+    return UpdateRecord(
+        row["run_id"], row["idx"], row["episode_id"], _tuple(row["theta_before"]),
+        _tuple(row["theta_after"]), row["cost"], row["J"], row["r"], row["r_z"], row["kappa"],
+        row["lr"], json.loads(row["state"]), row["stamp_s"],
+    )
+
+
+def _change(row: sqlite3.Row) -> ChangeRecord:
+    return ChangeRecord(row["seq"], row["run_id"], row["kind"], json.loads(row["value"]),
+                        row["source"], row["n_updates"], row["stamp_s"])
+
+
+class Store:
+    """The SQLite store. Thread-safe (one connection, one lock). Use as a context manager.
+
+    Args:
+        path: database file (created with its directory if missing).
+        readonly: open an existing store for reading (reports); never creates or migrates.
+
+    Raises:
+        StoreError: the file is not a store of this schema version.
+    """
+
+    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
+        self.path = Path(path)
+        self._lock = threading.RLock()
+        if readonly:
+            if not self.path.exists():
+                raise StoreError(f"no store at {self.path}")
+            uri = f"file:{self.path.resolve()}?mode=ro"
+            self._db = sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False,
+                                       timeout=10.0)
+        self._db.row_factory = sqlite3.Row
+        try:
+            self._db.execute("PRAGMA busy_timeout = 10000")
+            if not readonly:
+                mode = self._db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+                if mode.lower() != "wal":
+                    raise StoreError(f"{self.path}: cannot switch to WAL (journal_mode={mode})")
+                self._db.execute("PRAGMA synchronous = FULL")
+            self._db.execute("PRAGMA foreign_keys = ON")
+            version = self._db.execute("PRAGMA user_version").fetchone()[0]
+            if version == 0 and not readonly:
+                tables = self._db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
+                if tables:
+                    raise StoreError(f"{self.path} is an SQLite file but not an ersac-hil store")
+                self._db.executescript(_SCHEMA)
+            elif version != SCHEMA_VERSION:
+                raise StoreError(f"{self.path}: store schema {version}, this code needs {SCHEMA_VERSION}")
+        except sqlite3.DatabaseError as exc:
+            self._db.close()
+            raise StoreError(f"{self.path}: {exc}") from exc
+        except StoreError:
+            self._db.close()
+            raise
+
+    # ------------------------------------------------------------------ plumbing
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on error), under the lock."""
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
+
+    def _query(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            return self._db.execute(sql, params).fetchall()
+
+    @property
+    def journal_mode(self) -> str:
+        return str(self._query("PRAGMA journal_mode")[0][0])
+
+    # ------------------------------------------------------------------ runs
+    def create_run(self, run_id: str, robot: str, task: str, seed: int,
+                   settings: Mapping[str, Any], stamp_s: float | None = None) -> RunRecord:
+        """Insert a new ``running`` run. Raises :class:`StoreError` if the id exists."""
+        now = time.time() if stamp_s is None else stamp_s
+        try:
+            with self.transaction() as db:
+                db.execute(
+                    "INSERT INTO runs VALUES (?, ?, ?, ?, ?, 'running', '', ?, ?)",
+                    (run_id, robot, task, int(seed), _dumps(dict(settings)), now, now),
+                )
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"run {run_id!r} already exists") from exc
+        return self.run(run_id)
+
+    def run(self, run_id: str) -> RunRecord:
+        rows = self._query("SELECT * FROM runs WHERE run_id = ?", (run_id,))
+        if not rows:
+            raise RunNotFound(f"no run {run_id!r} in {self.path}")
+        return _run(rows[0])
+
+    def runs(self) -> list[RunRecord]:
+        return [_run(r) for r in self._query("SELECT * FROM runs ORDER BY created_s, rowid")]
+
+    def latest_unfinished(self, robot: str, task: str) -> RunRecord | None:
+        """The most recently created run of ``robot``/``task`` that is still ``running``."""
+        rows = self._query(
+            "SELECT * FROM runs WHERE robot = ? AND task = ? AND status = 'running' "
+            "ORDER BY created_s DESC, rowid DESC LIMIT 1", (robot, task))
+        return _run(rows[0]) if rows else None
+
+    def set_run_status(self, run_id: str, status: str, detail: str = "",
+                       settings: Mapping[str, Any] | None = None) -> None:
+        if status not in RUN_STATUSES:
+            raise StoreError(f"run status {status!r} not in {RUN_STATUSES}")
+        with self.transaction() as db:
+            cur = db.execute("UPDATE runs SET status = ?, detail = ?, updated_s = ? WHERE run_id = ?",
+                             (status, detail, time.time(), run_id))
+            if settings is not None:
+                db.execute("UPDATE runs SET settings = ? WHERE run_id = ?", (_dumps(dict(settings)), run_id))
+            if cur.rowcount != 1:
+                raise RunNotFound(f"no run {run_id!r}")
+
+    # ------------------------------------------------------------------ episodes
+    def begin_attempt(self, run_id: str, episode_id: str, idx: int, attempt: int,
+                      base_theta: Sequence[float], z: Sequence[float], theta: Sequence[float],
+                      seed: int, stamp_s: float | None = None) -> None:
+        """Commit a ``pending`` attempt before its request is sent."""
+        now = time.time() if stamp_s is None else stamp_s
+        try:
+            with self.transaction() as db:
+                db.execute(
+                    "INSERT INTO episodes (run_id, episode_id, idx, attempt, base_theta, z, theta, seed,"
+                    " status, requested_s) VALUES (?, ?, ?, ?, ?, ?, ?, ?, 'pending', ?)",
+                    (run_id, episode_id, idx, attempt, _vec(base_theta), _vec(z), _vec(theta),
+                     int(seed), now),
+                )
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"attempt {episode_id!r} (idx {idx}, attempt {attempt}): {exc}") from exc
+
+    def _finish(self, db: sqlite3.Connection, episode_id: str, status: str,
+                result: EpisodeResult | None, cost: float | None, detail: str) -> None:
+        if status not in ATTEMPT_STATUSES or status == "pending":
+            raise StoreError(f"cannot finish an attempt with status {status!r}")
+        values: dict[str, Any] = {"status": status, "cost": cost, "detail": detail,
+                                  "finished_s": time.time()}
+        if result is not None:
+            values.update(
+                cost_terms=_dumps(dict(result.cost_terms)), agent_cost=result.total_cost,
+                failures=_dumps(dict(result.failures)), telemetry=_dumps(dict(result.telemetry)),
+                fault_counts=_dumps(dict(result.fault_counts)), duration_s=result.duration_s,
+                wall_s=result.wall_s, detail=detail or result.detail,
+            )
+        sets = ", ".join(f"{k} = ?" for k in values)
+        cur = db.execute(f"UPDATE episodes SET {sets} WHERE episode_id = ? AND status = 'pending'",
+                         (*values.values(), episode_id))
+        if cur.rowcount != 1:
+            raise StoreError(f"attempt {episode_id!r} is not pending")
+
+    def record_failure(self, episode_id: str, status: str, detail: str,
+                       result: EpisodeResult | None = None) -> None:
+        """Commit a failed attempt (fault status, timeout, refusal): not told to the learner."""
+        if status == "ok":
+            raise StoreError("an ok episode is recorded with record_success")
+        with self.transaction() as db:
+            self._finish(db, episode_id, status, result, None, detail)
+
+    def record_success(self, episode_id: str, result: EpisodeResult, cost: float,
+                       update: UpdateRecord) -> None:
+        """Commit an ok episode AND its learner update in one transaction."""
+        if not result.ok or update.episode_id != episode_id:
+            raise StoreError("record_success needs an ok result and its own update")
+        with self.transaction() as db:
+            self._finish(db, episode_id, "ok", result, float(cost), "")
+            db.execute(
+                "INSERT INTO updates VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (update.run_id, update.idx, update.episode_id, _vec(update.theta_before),
+                 _vec(update.theta_after), float(update.cost), float(update.J), float(update.r),
+                 float(update.r_z), float(update.kappa), float(update.lr),
+                 _dumps(dict(update.state)), update.stamp_s),
+            )
+            db.execute("UPDATE runs SET updated_s = ? WHERE run_id = ?", (update.stamp_s, update.run_id))
+
+    def interrupt_pending(self, run_id: str, detail: str = "daemon stopped while pending") -> int:
+        """Mark every pending attempt of ``run_id`` ``interrupted``; returns how many."""
+        with self.transaction() as db:
+            cur = db.execute(
+                "UPDATE episodes SET status = 'interrupted', detail = ?, finished_s = ? "
+                "WHERE run_id = ? AND status = 'pending'", (detail, time.time(), run_id))
+            return cur.rowcount
+
+    def attempts(self, run_id: str, status: str | None = None) -> list[EpisodeRecord]:
+        """Every attempt of the run in insertion order (optionally one status only)."""
+        if status is None:
+            rows = self._query("SELECT * FROM episodes WHERE run_id = ? ORDER BY seq", (run_id,))
+        else:
+            rows = self._query("SELECT * FROM episodes WHERE run_id = ? AND status = ? ORDER BY seq",
+                               (run_id, status))
+        return [_episode(r) for r in rows]
+
+    def ok_episodes(self, run_id: str) -> list[EpisodeRecord]:
+        """The run's ok episodes in idx order (idx 0, 1, 2, ...)."""
+        rows = self._query("SELECT * FROM episodes WHERE run_id = ? AND status = 'ok' ORDER BY idx",
+                           (run_id,))
+        return [_episode(r) for r in rows]
+
+    def attempts_of(self, run_id: str, idx: int) -> list[EpisodeRecord]:
+        rows = self._query("SELECT * FROM episodes WHERE run_id = ? AND idx = ? ORDER BY attempt",
+                           (run_id, idx))
+        return [_episode(r) for r in rows]
+
+    def updates(self, run_id: str) -> list[UpdateRecord]:
+        rows = self._query("SELECT * FROM updates WHERE run_id = ? ORDER BY idx", (run_id,))
+        return [_update(r) for r in rows]
+
+    def update_count(self, run_id: str) -> int:
+        return int(self._query("SELECT count(*) FROM updates WHERE run_id = ?", (run_id,))[0][0])
+
+    def last_update(self, run_id: str) -> UpdateRecord | None:
+        rows = self._query("SELECT * FROM updates WHERE run_id = ? ORDER BY idx DESC LIMIT 1", (run_id,))
+        return _update(rows[0]) if rows else None
+
+    # ------------------------------------------------------------------ changes
+    def record_change(self, run_id: str, kind: str, value: Any, source: str,
+                      n_updates: int | None = None) -> ChangeRecord:
+        """Record a kappa or theta change (weights: :meth:`record_weights`)."""
+        if kind not in ("kappa", "theta"):
+            raise StoreError(f"use record_weights for {kind!r}" if kind == "weights" else f"bad kind {kind!r}")
+        with self.transaction() as db:
+            return self._insert_change(db, run_id, kind, value, source, n_updates)
+
+    def _insert_change(self, db: sqlite3.Connection, run_id: str, kind: str, value: Any,
+                       source: str, n_updates: int | None) -> ChangeRecord:
+        if n_updates is None:
+            n_updates = int(db.execute("SELECT count(*) FROM updates WHERE run_id = ?",
+                                       (run_id,)).fetchone()[0])
+        cur = db.execute(
+            "INSERT INTO changes (run_id, kind, value, source, n_updates, stamp_s) VALUES (?, ?, ?, ?, ?, ?)",
+            (run_id, kind, _dumps(value), source, n_updates, time.time()))
+        row = db.execute("SELECT * FROM changes WHERE seq = ?", (cur.lastrowid,)).fetchone()
+        return _change(row)
+
+    def record_weights(self, run_id: str, weights: Mapping[str, float], source: str) -> ChangeRecord:
+        """Record new complete weights and re-cost every ok episode of the run, atomically.
+
+        ``cost = TaskSpec.total_cost(cost_terms, weights)`` for every ok episode.
+        """
+        run = self.run(run_id)
+        spec = get_task(run.task)
+        checked = dict(spec.check_weights(weights))
+        with self.transaction() as db:
+            rows = db.execute("SELECT episode_id, cost_terms FROM episodes WHERE run_id = ? AND status = 'ok'",
+                              (run_id,)).fetchall()
+            for row in rows:
+                cost = spec.total_cost(json.loads(row["cost_terms"]), checked)
+                db.execute("UPDATE episodes SET cost = ? WHERE episode_id = ?", (cost, row["episode_id"]))
+            return self._insert_change(db, run_id, "weights", checked, source, None)
+
+    def changes(self, run_id: str, kind: str | None = None) -> list[ChangeRecord]:
+        if kind is None:
+            rows = self._query("SELECT * FROM changes WHERE run_id = ? ORDER BY seq", (run_id,))
+        else:
+            rows = self._query("SELECT * FROM changes WHERE run_id = ? AND kind = ? ORDER BY seq",
+                               (run_id, kind))
+        return [_change(r) for r in rows]
+
+    def latest_change(self, run_id: str, kind: str) -> ChangeRecord | None:
+        rows = self._query("SELECT * FROM changes WHERE run_id = ? AND kind = ? ORDER BY seq DESC LIMIT 1",
+                           (run_id, kind))
+        return _change(rows[0]) if rows else None
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """``value`` if finite, else ``None`` (for JSON summaries)."""
+    return value if value is not None and math.isfinite(value) else None

@@ -1,0 +1,218 @@
+"""The SQLite store, real files in tmp_path: WAL, commit per episode, re-costing, resume queries."""
+from __future__ import annotations
+
+import math
+import sqlite3
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ersac_hil.daemon.store import Store, StoreError, UpdateRecord
+from protocol.zenoh import EpisodeResult, get_task
+
+SPEC = get_task("bracing")
+
+
+def _result(eid: str, terms: dict[str, float], status: str = "ok") -> EpisodeResult:
+    total = SPEC.total_cost(terms) if status == "ok" else None
+    return EpisodeResult(eid, "bracing", status, terms, total, failures={"fallen": False},
+                         duration_s=2.0, wall_s=0.5, telemetry={"n_cycles": 400.0, "energy_j": 3.5},
+                         fault_counts={"emcy": 0})
+
+
+def _update(run_id: str, idx: int, eid: str, before: float, after: float) -> UpdateRecord:
+    return UpdateRecord(run_id, idx, eid, (before,), (after,), 1.5, 1.2, 0.3, 0.35, 2.0, 0.2,
+                        {"rng": {"state": 12345678901234567890123}, "note": "x"}, 1000.0 + idx)
+
+
+def _ok_episode(store: Store, run_id: str, idx: int, terms: dict[str, float], attempt: int = 0) -> str:
+    eid = f"{run_id}.{idx:05d}.{attempt}"
+    store.begin_attempt(run_id, eid, idx, attempt, (0.5,), (0.01,), (0.51,), 7 + idx)
+    result = _result(eid, terms)
+    store.record_success(eid, result, SPEC.total_cost(terms), _update(run_id, idx, eid, 0.5, 0.52))
+    return eid
+
+
+@pytest.fixture
+def store(tmp_path):
+    with Store(tmp_path / "s.db") as s:
+        s.create_run("run1", "r1", "bracing", 42, {"kappa": 2.0, "theta0": [0.5]})
+        yield s
+
+
+def test_store_is_wal_with_schema_and_reopens(tmp_path):
+    path = tmp_path / "sub" / "x.db"
+    with Store(path) as s:
+        assert s.journal_mode == "wal"
+        s.create_run("a", "r1", "bracing", 1, {"k": 1})
+    with Store(path) as s:  # reopening keeps the data, no re-creation
+        assert [r.run_id for r in s.runs()] == ["a"]
+        assert s.run("a").settings == {"k": 1}
+    with Store(path, readonly=True) as s:
+        assert s.run("a").seed == 1
+
+
+def test_foreign_sqlite_files_are_refused(tmp_path):
+    path = tmp_path / "other.db"
+    con = sqlite3.connect(path)
+    con.execute("CREATE TABLE t (x)")
+    con.commit()
+    con.close()
+    with pytest.raises(StoreError, match="not an ersac-hil store"):
+        Store(path)
+    (tmp_path / "junk.db").write_bytes(b"not a database at all" * 100)
+    with pytest.raises(StoreError):
+        Store(tmp_path / "junk.db")
+    with pytest.raises(StoreError, match="no store"):
+        Store(tmp_path / "missing.db", readonly=True)
+
+
+def test_duplicate_run_is_refused(store):
+    with pytest.raises(StoreError, match="exists"):
+        store.create_run("run1", "r1", "bracing", 1, {})
+
+
+def test_each_episode_is_visible_to_another_connection_once_recorded(store, tmp_path):
+    """Commit per episode: a separate reader (another connection) sees the pending attempt
+    and then the ok episode together with its update, never one without the other."""
+    reader = sqlite3.connect(tmp_path / "s.db")
+    eid = "run1.00000.0"
+    store.begin_attempt("run1", eid, 0, 0, (0.5,), (0.01,), (0.51,), 7)
+    assert reader.execute("SELECT status FROM episodes").fetchall() == [("pending",)]
+    assert reader.execute("SELECT count(*) FROM updates").fetchone() == (0,)
+    terms = {"damage": 0.0, "body_acc_sq": 2.5, "arm_power": 0.25}
+    store.record_success(eid, _result(eid, terms), SPEC.total_cost(terms), _update("run1", 0, eid, 0.5, 0.55))
+    assert reader.execute("SELECT status, cost FROM episodes").fetchall() == [("ok", SPEC.total_cost(terms))]
+    assert reader.execute("SELECT theta_after FROM updates").fetchall() == [("[0.55]",)]
+    reader.close()
+    ep = store.ok_episodes("run1")[0]
+    assert ep.cost_terms == terms and ep.telemetry["energy_j"] == 3.5 and ep.seed == 7
+    up = store.last_update("run1")
+    assert up.state["rng"]["state"] == 12345678901234567890123  # big ints survive
+
+
+def test_success_and_update_are_one_transaction(store):
+    eid = "run1.00000.0"
+    store.begin_attempt("run1", eid, 0, 0, (0.5,), (0.0,), (0.5,), 1)
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0}
+    bad = _update("run1", 0, "run1.99999.0", 0.5, 0.5)  # refers to an unknown episode
+    with pytest.raises(StoreError):
+        store.record_success(eid, _result(eid, terms), 1.0, bad)
+    broken = UpdateRecord("run1", 0, eid, (0.5,), (0.5,), math.nan, 0, 0, 0, 0, 0, {}, 0.0)
+    with pytest.raises(sqlite3.IntegrityError):  # NaN cost -> NOT NULL violation -> rollback
+        store.record_success(eid, _result(eid, terms), 1.0, broken)
+    assert [e.status for e in store.attempts("run1")] == ["pending"]
+    assert store.updates("run1") == []
+
+
+def test_failed_attempts_are_kept_and_only_one_ok_per_index(store):
+    store.begin_attempt("run1", "a0", 0, 0, (0.5,), (0.0,), (0.5,), 1)
+    store.record_failure("a0", "fault_emcy", "EMCY 0x5000", _result("a0", {"damage": 1.0}, "fault_emcy"))
+    store.begin_attempt("run1", "a1", 0, 1, (0.5,), (0.0,), (0.5,), 1)
+    store.record_failure("a1", "timeout", "no reply within 60 s")
+    _ok_episode(store, "run1", 0, {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0}, attempt=2)
+    assert [(e.attempt, e.status) for e in store.attempts_of("run1", 0)] == [
+        (0, "fault_emcy"), (1, "timeout"), (2, "ok")]
+    assert store.attempts_of("run1", 0)[0].cost_terms == {"damage": 1.0}
+    # a second ok for the same index is impossible, whatever the attempt number
+    store.begin_attempt("run1", "dup", 0, 3, (0.5,), (0.0,), (0.5,), 1)
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0}
+    with pytest.raises(sqlite3.IntegrityError):
+        store.record_success("dup", _result("dup", terms), 1.0, _update("run1", 0, "dup", 0.5, 0.5))
+    with pytest.raises(StoreError):  # same attempt number twice
+        store.begin_attempt("run1", "again", 0, 3, (0.5,), (0.0,), (0.5,), 1)
+    with pytest.raises(StoreError, match="not pending"):
+        store.record_failure("a0", "timeout", "twice")
+    assert store.interrupt_pending("run1") == 1
+    assert store.attempts_of("run1", 0)[-1].status == "interrupted"
+
+
+def test_a_killed_writer_leaves_only_whole_episodes(tmp_path):
+    """A process SIGKILLed in a loop of record_success leaves every episode with its update."""
+    path = tmp_path / "k.db"
+    code = textwrap.dedent(f"""
+        import os, signal
+        from ersac_hil.daemon.store import Store, UpdateRecord
+        from protocol.zenoh import EpisodeResult, get_task
+        spec = get_task("bracing")
+        s = Store({str(path)!r})
+        s.create_run("k", "r1", "bracing", 1, {{}})
+        terms = {{"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0}}
+        for i in range(10**6):
+            eid = f"k.{{i}}"
+            s.begin_attempt("k", eid, i, 0, (0.5,), (0.0,), (0.5,), i)
+            if i == 40:
+                os.kill(os.getpid(), signal.SIGKILL)
+            r = EpisodeResult(eid, "bracing", "ok", terms, spec.total_cost(terms))
+            s.record_success(eid, r, 1.0, UpdateRecord("k", i, eid, (0.5,), (0.5,), 1.0, 1.0, 0.1, 0.1, 0.0, 0.1, {{}}, 0.0))
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], timeout=60)
+    assert proc.returncode == -9
+    with Store(path) as s:
+        ok = s.ok_episodes("k")
+        assert [e.idx for e in ok] == list(range(40))
+        assert [u.idx for u in s.updates("k")] == list(range(40))
+        assert [e.status for e in s.attempts_of("k", 40)] == ["pending"]
+
+
+_term = st.floats(0.0, 1e6, allow_nan=False, allow_infinity=False)
+_weight = st.floats(0.0, 1e3, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    terms=st.lists(st.fixed_dictionaries({"damage": st.sampled_from([0.0, 1.0]),
+                                          "body_acc_sq": _term, "arm_power": _term}),
+                   min_size=1, max_size=6),
+    weights=st.fixed_dictionaries({"damage": _weight, "body_acc_sq": _weight, "arm_power": _weight}),
+)
+def test_recosting_is_exact(tmp_path_factory, terms, weights):
+    path = tmp_path_factory.mktemp("recost") / "r.db"
+    with Store(path) as s:
+        s.create_run("w", "r1", "bracing", 1, {})
+        for i, t in enumerate(terms):
+            _ok_episode(s, "w", i, t)
+        s.begin_attempt("w", "failed", len(terms), 0, (0.5,), (0.0,), (0.5,), 1)
+        s.record_failure("failed", "fault_heartbeat", "lost heartbeat")
+        change = s.record_weights("w", weights, "test")
+        assert change.kind == "weights" and change.value == weights and change.n_updates == len(terms)
+        for ep, t in zip(s.ok_episodes("w"), terms):
+            expected = math.fsum(weights[k] * t[k] for k in SPEC.term_names)
+            assert ep.cost == expected  # exact, not approx
+            assert ep.cost_terms == t  # raw terms never change
+        assert s.attempts("w", "fault_heartbeat")[0].cost is None
+        assert s.latest_change("w", "weights").value == weights
+
+
+def test_bad_weights_change_nothing(store):
+    _ok_episode(store, "run1", 0, {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0})
+    before = store.ok_episodes("run1")[0].cost
+    for bad in ({"damage": 1.0}, {"damage": -1.0, "body_acc_sq": 1.0, "arm_power": 1.0},
+                {"damage": 1.0, "body_acc_sq": 1.0, "arm_power": 1.0, "extra": 1.0}):
+        with pytest.raises(ValueError):
+            store.record_weights("run1", bad, "test")
+    assert store.ok_episodes("run1")[0].cost == before
+    assert store.changes("run1") == []
+
+
+def test_changes_and_latest_unfinished(store):
+    store.record_change("run1", "kappa", 0.5, "control")
+    store.record_change("run1", "kappa", 1.5, "control")
+    store.record_change("run1", "theta", [0.3], "select")
+    assert [c.value for c in store.changes("run1", "kappa")] == [0.5, 1.5]
+    assert store.latest_change("run1", "kappa").value == 1.5
+    assert store.latest_change("run1", "theta").n_updates == 0
+    with pytest.raises(StoreError):
+        store.record_change("run1", "weights", {}, "x")
+    store.create_run("run2", "r1", "bracing", 2, {})
+    store.create_run("run3", "r1", "lifting", 3, {})
+    assert store.latest_unfinished("r1", "bracing").run_id == "run2"
+    store.set_run_status("run2", "finished")
+    assert store.latest_unfinished("r1", "bracing").run_id == "run1"
+    assert store.latest_unfinished("r2", "bracing") is None
+    with pytest.raises(StoreError):
+        store.set_run_status("run1", "exploded")
