@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import math
 import pickle
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -238,6 +240,23 @@ def test_examples_from_the_docs_decode():
     )
     assert res.ok and res.failed("fallen") and not res.failed("over_current")
     assert TASKS["bracing"].total_cost(res.cost_terms) == pytest.approx(0.1 * 31.7 + 5 * 0.84)
+
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "zenoh.md"
+
+
+def test_every_json_example_in_the_docs_decodes_and_is_canonical():
+    text = DOC.read_text()
+    blocks = re.findall(r"```json\n(.*?)\n```", text, re.S)
+    decoded = [decode(block.encode()) for block in blocks]
+    assert {m.TYPE for m in decoded} == {c.TYPE for c in MESSAGE_CLASSES} - {"critic_point"}
+    for block, msg in zip(blocks, decoded):
+        assert json.loads(block) == json.loads(msg.to_json())
+    selectors = re.findall(r"^ersac/ubot1/learner/(critic|select)\?(.*)$", text, re.M)
+    assert len(selectors) == 3
+    for key, params in selectors:
+        cls = CriticQuery if key == "critic" else SelectQuery
+        assert cls.from_parameters(params).to_parameters() == params
 
 
 def test_numpy_inputs_are_normalised_to_plain_floats():
