@@ -11,6 +11,7 @@ All keys live under ``<prefix>/<robot>`` (default prefix ``ersac``)::
     ersac/<robot>/learner/weights    subscription (learner): WeightsCommand
     ersac/<robot>/learner/select     queryable (learner): ?kappa=...;weights=...;adopt=... -> SelectReply
     ersac/<robot>/learner/episodes   publication (learner): LearnerEpisode
+    ersac/<robot>/learner/error      publication (learner): ErrorReply for every refused put
 
 Zenoh key rules enforced here: chunks are non-empty (no leading, trailing or doubled ``/``),
 and contain no wildcard or selector characters (``*``, ``$``, ``?``, ``#``) nor whitespace.
@@ -43,6 +44,7 @@ _SUFFIXES = {
     "learner_weights": "learner/weights",
     "learner_select": "learner/select",
     "learner_episodes": "learner/episodes",
+    "learner_error": "learner/error",
 }
 
 
@@ -143,6 +145,12 @@ class KeySpace:
     def learner_episodes(self) -> str:
         """Publication of every episode the learner recorded."""
         return self._key("learner_episodes")
+
+    @property
+    def learner_error(self) -> str:
+        """Publication of an ``ErrorReply`` for every refused put (kappa, weights): a put has
+        no reply channel, so refusals are reported here."""
+        return self._key("learner_error")
 
     @property
     def learner_all(self) -> str:

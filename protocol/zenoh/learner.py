@@ -265,7 +265,7 @@ class WeightsCommand(Message):
 
     ``weights`` is a non-empty name -> finite, non-negative float mapping; names missing keep
     their current weight. Whether the names belong to the learner's task is checked by the
-    learner (``TaskSpec.check_weights``/``total_cost``), which ignores the whole command if not.
+    learner (``TaskSpec.total_cost``), which refuses the whole command if not (``learner/error``).
     """
 
     TYPE = "weights_command"

@@ -23,6 +23,7 @@ EXPECTED_SUFFIXES = {
     "learner_weights": "learner/weights",
     "learner_select": "learner/select",
     "learner_episodes": "learner/episodes",
+    "learner_error": "learner/error",
 }
 
 
