@@ -69,11 +69,14 @@ class InvalidField(PayloadError):
     """
 
     def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
+        super().__init__(f"{field}: {reason}" if field else reason)
         self.field = field
         self.reason = reason
 
     def prefixed(self, prefix: str) -> InvalidField:
-        """The same error with ``prefix`` prepended to the field path."""
+        """The same error with ``prefix`` prepended to the field path (``""`` = the object
+        itself, so the result names ``prefix``)."""
+        if not self.field:
+            return InvalidField(prefix, self.reason)
         joiner = "" if self.field.startswith("[") else "."
         return InvalidField(f"{prefix}{joiner}{self.field}", self.reason)

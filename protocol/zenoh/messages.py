@@ -116,7 +116,7 @@ class Message:
             InvalidField: not an object, missing or unexpected field, invalid value.
         """
         if not isinstance(obj, Mapping):
-            raise InvalidField(cls.TYPE or cls.__name__, f"expected an object, got {type(obj).__name__}")
+            raise InvalidField("", f"expected a {cls.TYPE!r} object, got {type(obj).__name__}")
         names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
         for key in obj:
             if key not in names:

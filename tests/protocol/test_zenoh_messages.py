@@ -328,6 +328,20 @@ def test_invalid_values_raise_invalid_field_naming_the_field(build, field):
     assert field in str(info.value)
 
 
+def test_nested_objects_of_the_wrong_kind_name_their_field():
+    done = json.loads(EpisodeDone("r1", 1.0, EpisodeRequest("e1", "bracing", (0.5,), 1),
+                                  EpisodeResult("e1", "bracing", "aborted", {}, None)).to_json())
+    done["request"] = [1, 2]
+    with pytest.raises(InvalidField) as info:
+        EpisodeDone.from_json(json.dumps(done).encode())
+    assert info.value.field == "request" and "episode_request" in str(info.value)
+    reply = json.loads(CriticReply("bracing", 0.0, (CriticPoint((0.5,), 1.0, 0.0, 1.0),)).to_json())
+    reply["points"][0]["J"] = "1"
+    with pytest.raises(InvalidField) as info:
+        CriticReply.from_json(json.dumps(reply).encode())
+    assert info.value.field == "points[0].J"
+
+
 def test_episode_done_requires_matching_request_and_result():
     req = EpisodeRequest("e1", "bracing", (0.5,), 1)
     other = EpisodeResult("e2", "bracing", "aborted", {}, None)
