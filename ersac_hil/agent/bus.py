@@ -1,0 +1,369 @@
+"""The agent's CANopen master: NMT, SDO configuration, heartbeats, EMCY and the SYNC cycle.
+
+``AgentBus`` owns one ``canopen.Network`` on a ``BusConfig`` with a ``RemoteNode`` per bench
+device (built from the EDS files; PDO maps read from the object dictionary, never uploaded
+over SDO). It produces the agent's heartbeat (``HeartbeatProducer``), keeps the age of every
+node's heartbeat itself (canopen has no heartbeat consumer), collects EMCY messages, and runs
+the cyclic exchange::
+
+    with AgentBus(config) as bus:
+        bus.wait_for_nodes()
+        bus.nmt_start()
+        telemetry = bus.cycle(Commands(wheel_torque=(0.1, 0.1)))   # RPDOs, SYNC, wait TPDOs
+
+``cycle`` sends every RPDO, then SYNC, then waits (up to ``deadline_s``) until every
+synchronous TPDO of that SYNC has arrived, and returns the decoded ``Telemetry``. Lock-step
+(default): the next SYNC goes out as soon as the caller asks for it, so a simulated bench runs
+as fast as it can. Real-time: SYNC is paced by the wall clock at ``period_s``; a cycle that
+finishes after its slot counts as an overrun. Failures raise ``PdoTimeout``,
+``HeartbeatLost`` or ``BusDown`` (``errors.py``); the caller decides what they end.
+
+Threads: the python-can Notifier thread runs the TPDO/heartbeat/EMCY callbacks (short, under
+one condition variable); ``cycle``/SDO calls come from one caller thread.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import can
+import canopen
+from canopen.objectdictionary import ODVariable
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeMissing,
+                                    PdoTimeout, SdoTimeout)
+from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry
+from ersac_hil.canbus.heartbeat import HeartbeatProducer
+from protocol.can import cobid
+from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device, object_dictionary
+from protocol.can.busconfig import BusConfig, open_bus
+from protocol.can.objects import Scale
+
+log = logging.getLogger(__name__)
+
+NOTIFIER_CYCLE_S = 0.05
+"""Receive poll timeout of the Notifier thread (canopen's 1 s default makes every
+``close`` wait up to a second for the thread to notice)."""
+NMT_STATES = {0: "BOOTUP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
+
+
+@dataclass(frozen=True)
+class BusTiming:
+    """Timing of the cyclic exchange.
+
+    Attributes:
+        period_s: control period, the SYNC interval in real-time mode (default 5 ms, 200 Hz).
+        deadline_s: how long a cycle waits for its TPDOs after SYNC.
+        heartbeat_timeout_s: a node whose last heartbeat is older is lost (producers send
+            every 100 ms; the default tolerates four missed heartbeats plus scheduling jitter).
+        realtime: pace SYNC by the wall clock instead of lock-step.
+    """
+    period_s: float = 0.005
+    deadline_s: float = 0.1
+    heartbeat_timeout_s: float = 0.45
+    realtime: bool = False
+
+    def __post_init__(self) -> None:
+        if not (0 < self.period_s <= 1 and 0 < self.deadline_s <= 10 and self.heartbeat_timeout_s > 0):
+            raise ValueError(f"invalid bus timing {self}")
+
+
+@dataclass(frozen=True)
+class EmcyEvent:
+    """One EMCY frame: who sent it, code, error register, vendor bytes, and the SYNC cycle
+    count when it arrived."""
+    device: str
+    code: int
+    register: int
+    data: bytes
+    cycle: int
+    time_s: float
+
+
+class AgentBus:
+    """CANopen master of the uBot bench (see the module docstring). Not re-entrant: one
+    caller thread drives ``cycle`` and the SDO helpers."""
+
+    def __init__(self, config: BusConfig, devices: tuple[Device, ...] = BENCH,
+                 timing: BusTiming = BusTiming()) -> None:
+        self.config, self.devices, self.timing = config, tuple(devices), timing
+        self._by_name = {d.name: d for d in self.devices}
+        self.network: canopen.Network | None = None
+        self.nodes: dict[str, canopen.RemoteNode] = {}
+        self._heartbeat: HeartbeatProducer | None = None
+        self._cond = threading.Condition()
+        self._hb_seen: dict[str, float] = {}
+        self._hb_state: dict[str, int] = {}
+        self._emcy: list[EmcyEvent] = []
+        self._tpdo_device: dict[int, str] = {}
+        self._rpdos: list[tuple[str, object]] = []
+        self._pending: set[int] = set()
+        self._raw: dict[str, dict[tuple[int, int], int]] = {}
+        self.cycles = 0
+        self.overruns = 0
+        self._next_sync: float | None = None
+        self._last_commands = Commands()
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def open(self) -> "AgentBus":
+        try:
+            network = canopen.Network(open_bus(self.config))
+            network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            self.network = network.connect()
+        except (OSError, can.CanError, ValueError) as exc:
+            raise BusDown(f"cannot open CAN bus {self.config.describe()}: {exc}") from exc
+        net = self.network
+        for dev in self.devices:
+            node = canopen.RemoteNode(dev.node_id, object_dictionary(dev))
+            net.add_node(node)
+            node.tpdo.read(from_od=True)
+            node.rpdo.read(from_od=True)
+            node.emcy.add_callback(lambda e, name=dev.name: self._on_emcy(name, e))
+            net.subscribe(cobid.heartbeat(dev.node_id),
+                          lambda can_id, data, ts, name=dev.name: self._on_heartbeat(name, data))
+            self.nodes[dev.name] = node
+            for pdo_map in node.tpdo.map.values():
+                if pdo_map.enabled and pdo_map.trans_type and 1 <= pdo_map.trans_type <= 240:
+                    self._tpdo_device[pdo_map.cob_id] = dev.name
+                    pdo_map.add_callback(self._on_tpdo)
+            if dev in ACTUATED:
+                self._rpdos += [(dev.name, m) for m in node.rpdo.map.values() if m.enabled]
+        self._heartbeat = HeartbeatProducer(net).start()
+        return self
+
+    def close(self) -> None:
+        if self._heartbeat is not None:
+            self._heartbeat.stop()
+            self._heartbeat = None
+        if self.network is not None:
+            try:
+                self.network.disconnect()
+            except Exception as exc:  # the bus may already be gone
+                log.debug("disconnect: %s", exc)
+            self.network = None
+
+    def __enter__(self) -> "AgentBus":
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def net(self) -> canopen.Network:
+        if self.network is None:
+            raise BusDown("the agent's CAN bus is not open")
+        return self.network
+
+    def stop_heartbeat(self) -> None:
+        """Stop producing the agent's heartbeat (tests of the controllers' safe state)."""
+        if self._heartbeat is not None:
+            self._heartbeat.stop()
+
+    # -- heartbeats --------------------------------------------------------------------------
+    def _on_heartbeat(self, name: str, data: bytes) -> None:
+        with self._cond:
+            self._hb_seen[name] = time.monotonic()
+            self._hb_state[name] = data[0] & 0x7F if data else -1
+
+    def heartbeat_ages(self) -> dict[str, float | None]:
+        """Seconds since each device's last heartbeat (``None``: never heard)."""
+        now = time.monotonic()
+        with self._cond:
+            return {d.name: (now - self._hb_seen[d.name]) if d.name in self._hb_seen else None
+                    for d in self.devices}
+
+    def nmt_states(self) -> dict[str, str | None]:
+        """NMT state each device last reported in its heartbeat."""
+        with self._cond:
+            return {d.name: NMT_STATES.get(self._hb_state[d.name], str(self._hb_state[d.name]))
+                    if d.name in self._hb_state else None for d in self.devices}
+
+    def present(self, device: Device | str) -> bool:
+        """Whether the device's heartbeat is fresh."""
+        age = self.heartbeat_ages()[_name(device)]
+        return age is not None and age <= self.timing.heartbeat_timeout_s
+
+    def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
+        """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
+        ages = self.heartbeat_ages()
+        for dev in devices:
+            age = ages[_name(dev)]
+            if age is None or age > self.timing.heartbeat_timeout_s:
+                raise HeartbeatLost(_name(dev), age, self.timing.heartbeat_timeout_s)
+
+    def wait_for_nodes(self, devices: Iterable[Device | str] = CYCLIC,
+                       timeout_s: float = 2 * HEARTBEAT_PERIOD_MS / 1000 + 0.1) -> None:
+        """Block until every device has sent a heartbeat; ``NodeMissing`` after ``timeout_s``."""
+        names = [_name(d) for d in devices]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            missing = [n for n in names if not self.present(n)]
+            if not missing:
+                return
+            if time.monotonic() >= deadline:
+                raise NodeMissing(tuple(missing), timeout_s)
+            time.sleep(0.01)
+
+    # -- EMCY ------------------------------------------------------------------------------
+    def _on_emcy(self, name: str, entry) -> None:
+        with self._cond:
+            self._emcy.append(EmcyEvent(name, int(entry.code), int(entry.register),
+                                        bytes(entry.data), self.cycles, time.monotonic()))
+
+    def emcy_events(self, since: int = 0) -> list[EmcyEvent]:
+        """EMCY frames received so far (from position ``since`` of the log)."""
+        with self._cond:
+            return list(self._emcy[since:])
+
+    @property
+    def emcy_count(self) -> int:
+        with self._cond:
+            return len(self._emcy)
+
+    # -- NMT -------------------------------------------------------------------------------
+    def nmt_start(self) -> None:
+        """NMT start remote node (broadcast): every node to OPERATIONAL."""
+        self._nmt(0x01)
+
+    def nmt_preop(self) -> None:
+        """NMT enter pre-operational (broadcast): cyclic traffic stops."""
+        self._nmt(0x80)
+
+    def _nmt(self, command: int) -> None:
+        try:
+            self.net.send_message(cobid.NMT, bytes([command, 0]))
+        except (can.CanError, OSError) as exc:
+            raise BusDown(f"NMT 0x{command:02X} not sent: {exc}") from exc
+
+    # -- SDO -------------------------------------------------------------------------------
+    def write(self, device: Device | str, index: int, subindex: int, value: float,
+              scale: Scale | None = None) -> int:
+        """Download ``value`` (SI with ``scale``, else raw) to ``index:subindex`` of ``device``.
+
+        Returns the raw count written. Raises ``ConfigRefused`` with the abort code when the
+        node refuses it (range, read-only...), ``SdoTimeout`` when it does not answer.
+        """
+        name = _name(device)
+        var = _variable(self._by_name[name], index, subindex)
+        raw = scale.to_raw(value) if scale is not None else int(value)
+        try:
+            self.nodes[name].sdo.download(index, subindex, var.encode_raw(raw))
+        except SdoAbortedError as exc:
+            raise ConfigRefused(name, index, subindex, value, exc.code) from exc
+        except SdoCommunicationError as exc:
+            raise SdoTimeout(f"{name} 0x{index:04X}:{subindex}: {exc}") from exc
+        except (can.CanError, OSError) as exc:
+            raise BusDown(f"SDO to {name} not sent: {exc}") from exc
+        return raw
+
+    def read(self, device: Device | str, index: int, subindex: int = 0,
+             scale: Scale | None = None) -> float | int:
+        """Upload ``index:subindex`` of ``device`` (SI with ``scale``, else raw)."""
+        name = _name(device)
+        var = _variable(self._by_name[name], index, subindex)
+        try:
+            raw = var.decode_raw(self.nodes[name].sdo.upload(index, subindex))
+        except SdoAbortedError as exc:
+            raise ConfigRefused(name, index, subindex, None, exc.code) from exc
+        except SdoCommunicationError as exc:
+            raise SdoTimeout(f"{name} 0x{index:04X}:{subindex}: {exc}") from exc
+        except (can.CanError, OSError) as exc:
+            raise BusDown(f"SDO to {name} not sent: {exc}") from exc
+        return scale.from_raw(raw) if scale is not None else raw
+
+    # -- the SYNC cycle ---------------------------------------------------------------------
+    def _on_tpdo(self, pdo_map) -> None:
+        with self._cond:
+            if pdo_map.cob_id not in self._pending:
+                return
+            values = self._raw[self._tpdo_device[pdo_map.cob_id]]
+            for var in pdo_map.map:
+                values[(var.index, var.subindex)] = var.raw
+            self._pending.discard(pdo_map.cob_id)
+            if not self._pending:
+                self._cond.notify_all()
+
+    def reset_pacing(self) -> None:
+        """Forget the real-time schedule (the next cycle starts a new one)."""
+        self._next_sync = None
+
+    def cycle(self, commands: Commands | None = None) -> Telemetry:
+        """One SYNC cycle: RPDOs with ``commands`` (the last ones if ``None``), SYNC, then
+        every synchronous TPDO of this SYNC, decoded.
+
+        Raises:
+            HeartbeatLost: a cyclic node's heartbeat is stale (checked before the SYNC).
+            PdoTimeout: some TPDO missing ``deadline_s`` after the SYNC.
+            BusDown: the bus failed.
+        """
+        if commands is not None:
+            self._last_commands = commands
+        net = self.net
+        self.check_heartbeats()
+        if self.timing.realtime:
+            self._pace()
+        with self._cond:
+            self.cycles += 1
+            cycle = self.cycles
+            self._pending = set(self._tpdo_device)
+            self._raw = {name: {} for name in set(self._tpdo_device.values())}
+        try:
+            for name, pdo_map in self._rpdos:
+                raw = self._last_commands.raw(name)
+                for var in pdo_map.map:
+                    var.raw = raw[(var.index, var.subindex)]
+                pdo_map.transmit()
+            t0 = time.perf_counter()
+            net.send_message(cobid.SYNC, b"")
+        except (can.CanError, OSError, RuntimeError) as exc:
+            raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
+        deadline = t0 + self.timing.deadline_s
+        with self._cond:
+            while self._pending:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            missing, raw = set(self._pending), self._raw
+            self._pending = set()
+        latency = time.perf_counter() - t0
+        if missing:
+            self._raise_if_bus_down()
+            names = tuple(sorted(f"{self._tpdo_device[c]}:0x{c:03X}" for c in missing))
+            raise PdoTimeout(cycle, names, self.timing.deadline_s)
+        if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
+            self.overruns += 1
+        return Telemetry.decode(cycle, raw, latency)
+
+    def _pace(self) -> None:
+        now = time.perf_counter()
+        period = self.timing.period_s
+        if self._next_sync is None:
+            self._next_sync = now
+        else:
+            self._next_sync += period
+            if self._next_sync < now - period:  # more than a slot behind: re-phase
+                self.overruns += 1
+                self._next_sync = now
+        wait = self._next_sync - time.perf_counter()
+        if wait > 0:
+            time.sleep(wait)
+
+    def _raise_if_bus_down(self) -> None:
+        try:
+            self.net.check()
+        except Exception as exc:
+            raise BusDown(f"CAN receive thread stopped: {exc}") from exc
+
+
+def _name(device: Device | str) -> str:
+    return device if isinstance(device, str) else device.name
+
+
+def _variable(dev: Device, index: int, subindex: int) -> ODVariable:
+    entry = object_dictionary(dev)[index]
+    return entry if isinstance(entry, ODVariable) else entry[subindex]

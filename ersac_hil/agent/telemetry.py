@@ -1,0 +1,225 @@
+"""What goes over the bus each SYNC cycle, in SI units: ``Commands`` out, ``Telemetry`` in.
+
+Both are frozen dataclasses; the CANopen encoding (counts, PDO layout) lives in ``bus.py``.
+``Trace`` stacks the telemetry of an episode into arrays for the cost terms.
+
+Joint order everywhere is ``JOINTS`` (the ``joints`` of the bench devices in node-id order):
+``wheel_left, wheel_right, torso, shoulder_left, elbow_left, shoulder_right, elbow_right``.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.can import objects as obj
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, Device
+from protocol.can.objects import Control, Index, Status
+
+ACTUATED: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT)
+"""Devices with motor axes (RPDO commands, axis telemetry)."""
+CYCLIC: tuple[Device, ...] = ACTUATED + (IMU,)
+"""Devices with synchronous TPDOs, i.e. what every SYNC cycle waits for."""
+JOINTS: tuple[str, ...] = tuple(j for d in ACTUATED for j in d.joints)
+"""Joint names in telemetry order, shape ``(7,)``."""
+JOINT_INDEX: dict[tuple[str, int], int] = {
+    (d.name, sub): JOINTS.index(j) for d in ACTUATED for sub, j in enumerate(d.joints, start=1)}
+"""(device name, axis sub-index) -> position in ``JOINTS``."""
+STATUS_DEVICES: tuple[str, ...] = tuple(d.name for d in CYCLIC)
+
+WHEELS_SLICE = slice(0, 2)
+TORSO_I = 2
+ARM_SLICES = {"left": slice(3, 5), "right": slice(5, 7)}
+
+AXIS_SCALES = {Index.POSITION: obj.POSITION, Index.VELOCITY: obj.VELOCITY,
+               Index.CURRENT: obj.CURRENT, Index.VOLTAGE: obj.VOLTAGE}
+"""Per-axis telemetry objects and their scaling (wheel positions share the 1e-4 rad factor)."""
+IMU_SCALES = {Index.PITCH: obj.PITCH, Index.PITCH_RATE: obj.PITCH_RATE,
+              Index.PITCH_ACCELERATION: obj.PITCH_ACCELERATION,
+              Index.ACCELERATION_X: obj.ACCELERATION, Index.ACCELERATION_Z: obj.ACCELERATION}
+
+
+@dataclass(frozen=True)
+class Commands:
+    """Setpoints of one SYNC cycle (what the RPDOs carry).
+
+    Attributes:
+        wheel_torque: (left, right) motor torque at the wheel [N m], saturated at the
+            16-bit range (+-32.767 N m); the controllers limit further.
+        torso_position: torso yaw setpoint [rad].
+        arm_left, arm_right: (shoulder, elbow) position setpoints [rad].
+        control: control word for the wheels and torso.
+        arm_control: control word for both arms (``START_SPLINE`` rising edge starts the
+            downloaded spline).
+    """
+    wheel_torque: tuple[float, float] = (0.0, 0.0)
+    torso_position: float = 0.0
+    arm_left: tuple[float, float] = (0.0, 0.0)
+    arm_right: tuple[float, float] = (0.0, 0.0)
+    control: Control = Control.ENABLE
+    arm_control: Control = Control.ENABLE
+
+    def raw(self, device: str) -> dict[tuple[int, int], int]:
+        """RPDO values of ``device`` as raw counts by (index, sub-index)."""
+        if device == WHEELS.name:
+            left, right = self.wheel_torque
+            return {(Index.TORQUE_COMMAND, 1): obj.TORQUE.to_raw(left),
+                    (Index.TORQUE_COMMAND, 2): obj.TORQUE.to_raw(right),
+                    (Index.CONTROL, 0): int(self.control)}
+        if device == TORSO.name:
+            return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(self.torso_position),
+                    (Index.CONTROL, 0): int(self.control)}
+        if device in (ARM_LEFT.name, ARM_RIGHT.name):
+            shoulder, elbow = self.arm_left if device == ARM_LEFT.name else self.arm_right
+            return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(shoulder),
+                    (Index.POSITION_SETPOINT, 2): obj.POSITION.to_raw(elbow),
+                    (Index.CONTROL, 0): int(self.arm_control)}
+        raise KeyError(f"{device} takes no commands")
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """Everything the synchronous TPDOs of one SYNC cycle carried, in SI units.
+
+    Attributes:
+        cycle: SYNC count since the bus was opened (1 = first SYNC).
+        position, velocity, current, voltage: per joint in ``JOINTS`` order, shape ``(7,)``
+            [rad, rad/s, A, V].
+        pitch, pitch_rate, pitch_acc: body pitch [rad] (positive leaning forward), its rate
+            [rad/s] and acceleration [rad/s^2] from the IMU.
+        acc_x, acc_z: IMU linear acceleration [m/s^2].
+        status: status words in ``STATUS_DEVICES`` order.
+        latency_s: wall time from SYNC to the last TPDO of the cycle.
+    """
+    cycle: int
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    current: tuple[float, ...]
+    voltage: tuple[float, ...]
+    pitch: float
+    pitch_rate: float
+    pitch_acc: float
+    acc_x: float
+    acc_z: float
+    status: tuple[int, ...]
+    latency_s: float = field(default=0.0, compare=False)
+
+    @classmethod
+    def decode(cls, cycle: int, raw: dict[str, dict[tuple[int, int], int]],
+               latency_s: float = 0.0) -> "Telemetry":
+        """From raw TPDO counts by device name and (index, sub-index)."""
+        axes = {index: [0.0] * len(JOINTS) for index in AXIS_SCALES}
+        for device in ACTUATED:
+            values = raw[device.name]
+            for sub in range(1, len(device.joints) + 1):
+                j = JOINT_INDEX[(device.name, sub)]
+                for index, scale in AXIS_SCALES.items():
+                    axes[index][j] = scale.from_raw(values[(index, sub)])
+        imu = raw[IMU.name]
+        return cls(cycle=cycle,
+                   position=tuple(axes[Index.POSITION]), velocity=tuple(axes[Index.VELOCITY]),
+                   current=tuple(axes[Index.CURRENT]), voltage=tuple(axes[Index.VOLTAGE]),
+                   **{name: IMU_SCALES[index].from_raw(imu[(index, 0)]) for name, index in (
+                       ("pitch", Index.PITCH), ("pitch_rate", Index.PITCH_RATE),
+                       ("pitch_acc", Index.PITCH_ACCELERATION), ("acc_x", Index.ACCELERATION_X),
+                       ("acc_z", Index.ACCELERATION_Z))},
+                   status=tuple(int(raw[d][(Index.STATUS, 0)]) for d in STATUS_DEVICES),
+                   latency_s=latency_s)
+
+    # -- named accessors ------------------------------------------------------------------
+    @property
+    def wheel_positions(self) -> tuple[float, float]:
+        return self.position[WHEELS_SLICE]  # type: ignore[return-value]
+
+    @property
+    def wheel_velocities(self) -> tuple[float, float]:
+        return self.velocity[WHEELS_SLICE]  # type: ignore[return-value]
+
+    @property
+    def wheel_currents(self) -> tuple[float, float]:
+        return self.current[WHEELS_SLICE]  # type: ignore[return-value]
+
+    @property
+    def wheel_voltages(self) -> tuple[float, float]:
+        return self.voltage[WHEELS_SLICE]  # type: ignore[return-value]
+
+    @property
+    def torso_position(self) -> float:
+        return self.position[TORSO_I]
+
+    def arm_positions(self, side: str) -> tuple[float, float]:
+        """(shoulder, elbow) [rad] of ``side`` ("left" or "right")."""
+        return self.position[ARM_SLICES[side]]  # type: ignore[return-value]
+
+    def arm_velocities(self, side: str) -> tuple[float, float]:
+        return self.velocity[ARM_SLICES[side]]  # type: ignore[return-value]
+
+    def status_of(self, device: str) -> Status:
+        return Status(self.status[STATUS_DEVICES.index(device)])
+
+    @property
+    def any_status(self) -> Status:
+        """OR of every device's status word."""
+        out = 0
+        for word in self.status:
+            out |= word
+        return Status(out)
+
+
+@dataclass(frozen=True)
+class Trace:
+    """The telemetry of an episode stacked into arrays (``n`` cycles).
+
+    Attributes:
+        dt: control period [s] (time between samples).
+        position, velocity, current, voltage: shape ``(n, 7)``, ``JOINTS`` order.
+        pitch, pitch_rate, pitch_acc, acc_x, acc_z: shape ``(n,)``.
+        status: shape ``(n, 5)`` status words, ``STATUS_DEVICES`` order.
+    """
+    dt: float
+    position: np.ndarray
+    velocity: np.ndarray
+    current: np.ndarray
+    voltage: np.ndarray
+    pitch: np.ndarray
+    pitch_rate: np.ndarray
+    pitch_acc: np.ndarray
+    acc_x: np.ndarray
+    acc_z: np.ndarray
+    status: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[Telemetry], dt: float) -> "Trace":
+        n = len(samples)
+
+        def col(name: str, width: int | None = None) -> np.ndarray:
+            a = np.array([getattr(s, name) for s in samples], dtype=float)
+            return a.reshape((n, width) if width else (n,))
+
+        return cls(dt=dt,
+                   position=col("position", len(JOINTS)), velocity=col("velocity", len(JOINTS)),
+                   current=col("current", len(JOINTS)), voltage=col("voltage", len(JOINTS)),
+                   pitch=col("pitch"), pitch_rate=col("pitch_rate"), pitch_acc=col("pitch_acc"),
+                   acc_x=col("acc_x"), acc_z=col("acc_z"),
+                   status=np.array([s.status for s in samples], dtype=np.int64).reshape(
+                       n, len(STATUS_DEVICES)))
+
+    def __len__(self) -> int:
+        return int(self.pitch.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return len(self) * self.dt
+
+    def joint(self, name: str) -> int:
+        return JOINTS.index(name)
+
+    @property
+    def arm_columns(self) -> list[int]:
+        """Columns of the four arm joints."""
+        return list(range(ARM_SLICES["left"].start, ARM_SLICES["right"].stop))
+
+    def status_any(self) -> int:
+        """OR of every status word of every cycle."""
+        return int(np.bitwise_or.reduce(self.status, axis=None)) if len(self) else 0

@@ -1,0 +1,87 @@
+"""Fixtures of the agent's tests: the reference bench (static CiA 301 nodes from the EDS files)
+on every available CAN backend, and an ``AgentBus`` connected to it."""
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import canopen
+import pytest
+
+
+def _unshadow_ersac_hil() -> None:
+    """With /work/main/tests on sys.path (rootdir conftest, prepend import mode) the directory
+    tests/ersac_hil is a namespace package that shadows the real ``ersac_hil``, and
+    tests/ersac_hil/agent shadows ``ersac_hil.agent`` (docs/requests.md asks for the central
+    fix). Re-import the real package; a no-op once the shadowing is gone."""
+    pkg = sys.modules.get("ersac_hil")
+    if pkg is None or getattr(pkg, "__file__", None):
+        return
+    root = str(Path(__file__).resolve().parents[3])
+    if root not in sys.path:
+        sys.path.append(root)
+    for name in [m for m in sys.modules if m == "ersac_hil" or m.startswith("ersac_hil.")]:
+        if getattr(sys.modules[name], "__file__", None) is None:
+            del sys.modules[name]
+    importlib.import_module("ersac_hil")
+
+
+_unshadow_ersac_hil()
+
+from ersac_hil.agent.bus import AgentBus, BusTiming  # noqa: E402
+from firmware_sim.nodes import SlaveNode  # noqa: E402
+from protocol.can.bench import BENCH  # noqa: E402
+from protocol.can.busconfig import open_bus  # noqa: E402
+
+
+class ReferenceBench:
+    """Every bench device as a ``SlaveNode`` with the static application, on its own network."""
+
+    def __init__(self, bus_config, devices=BENCH):
+        self.network = canopen.Network(open_bus(bus_config))
+        self.network.NOTIFIER_CYCLE = 0.05  # fast disconnect
+        self.network.connect()
+        self.nodes = {d.name: SlaveNode(d) for d in devices}
+        for node in self.nodes.values():
+            node.connect(self.network)
+
+    def remove(self, name: str) -> None:
+        """Take one node off the bus (it stops answering, sending TPDOs and heartbeats)."""
+        self.nodes.pop(name).close()
+
+    def close(self):
+        for node in self.nodes.values():
+            node.close()
+        self.network.disconnect()
+
+
+@pytest.fixture
+def make_reference_bench():
+    """Factory for benches on buses a test manages itself; closes them at the end."""
+    made = []
+
+    def make(bus_config, devices=BENCH):
+        made.append(ReferenceBench(bus_config, devices))
+        return made[-1]
+
+    yield make
+    for bench in made:
+        try:
+            bench.close()
+        except Exception:
+            pass
+
+
+@pytest.fixture
+def reference_bench(can_backend):
+    bench = ReferenceBench(can_backend)
+    yield bench
+    bench.close()
+
+
+@pytest.fixture
+def agent_bus(reference_bench, can_backend):
+    with AgentBus(can_backend, timing=BusTiming(deadline_s=0.1, heartbeat_timeout_s=0.3)) as bus:
+        bus.wait_for_nodes()
+        yield bus
