@@ -45,9 +45,13 @@ def _bus(args: argparse.Namespace) -> int:
     return serve(_HubService(args.port, args.monitor))
 
 
-def _sim(args: argparse.Namespace) -> int:
-    os.execv(sys.executable, [sys.executable, "-m", "firmware_sim", *args.sim_args])
+def _exec_sim(sim_args: list[str]) -> int:
+    os.execv(sys.executable, [sys.executable, "-m", "firmware_sim", *sim_args])
     return 1  # not reached
+
+
+def _sim(args: argparse.Namespace) -> int:
+    return _exec_sim(args.sim_args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,6 +93,9 @@ def _extensions():
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["sim"]:  # everything after "sim" belongs to the simulator's own parser
+        return _exec_sim(argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")

@@ -43,6 +43,10 @@ class NodeApplication:
     def on_commands(self, changed: dict[Key, int]) -> None:
         """RPDO values that changed, applied at SYNC (raw integers)."""
 
+    def read(self, key: Key) -> int | None:
+        """Live value for an SDO upload (ground truth, counters); ``None``: use stored data."""
+        return None
+
     def on_config(self, key: Key, value: int | float | str) -> None:
         """An SDO download passed the range check; raise ``SdoAbortedError`` to refuse it."""
 
@@ -249,7 +253,8 @@ class SlaveNode(canopen.LocalNode):
 
     # -- SDO server hooks ------------------------------------------------------------------
     def _on_sdo_read(self, index: int, subindex: int, od) -> int | None:
-        return self._values.get((index, subindex))
+        live = self.app.read((index, subindex))
+        return live if live is not None else self._values.get((index, subindex))
 
     def _on_sdo_write(self, index: int, subindex: int, od, data: bytes) -> None:
         value = check_range(od, data)

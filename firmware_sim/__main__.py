@@ -1,0 +1,109 @@
+"""``python -m firmware_sim`` (also ``ersac-hil sim``): the simulated bench on a CAN bus.
+
+    python -m firmware_sim --bus-interface remote --bus-channel ws://127.0.0.1:PORT/ --seed 3
+    python -m firmware_sim --snapshot out.png --scenario bracing
+
+Runs until SIGINT/SIGTERM, then takes every node off the bus and closes it.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: headless rendering
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import signal  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ersac-hil sim", description="MuJoCo uBot bench as CANopen nodes")
+    p.add_argument("--bus-interface", help="python-can interface (virtual, remote, socketcan)")
+    p.add_argument("--bus-channel", help="channel (ws://127.0.0.1:PORT/ for the loopback hub, vcan0, ...)")
+    p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0, help="seed of the idle scenario at start")
+    p.add_argument("--realtime", action="store_true", help="pace physics by the wall clock")
+    p.add_argument("--control-period", type=float, default=0.005, help="s per SYNC (default 0.005)")
+    p.add_argument("--substeps", type=int, default=5, help="physics steps per period (default 5)")
+    p.add_argument("--snapshot", metavar="PNG", help="render one frame headlessly and exit")
+    p.add_argument("--scenario", default="bracing", help="scenario of --snapshot")
+    p.add_argument("--at", type=float, default=0.0, help="--snapshot: simulated seconds before the frame")
+    p.add_argument("-v", "--verbose", action="count", default=0)
+    return p
+
+
+def snapshot(path: str, scenario: str, seed: int, at: float) -> None:
+    """Render the scenario's state after ``at`` s (passive robot) to a PNG."""
+    import mujoco
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from firmware_sim.simulator import Simulator
+
+    sim = Simulator()
+    sim.reset(scenario, seed)
+    for _ in range(int(round(at / sim.control_period))):
+        sim.step()
+    phys = sim.physics
+    camera = mujoco.MjvCamera()
+    camera.lookat[:] = phys.base_position() + [0.0, 0.0, 0.3]
+    camera.distance, camera.azimuth, camera.elevation = 2.2, 120.0, -15.0
+    with mujoco.Renderer(phys.model, 480, 640) as renderer:
+        renderer.update_scene(phys.data, camera)
+        pixels = renderer.render()
+    plt.imsave(path, pixels)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
+                        format="%(asctime)s sim %(levelname)s %(message)s")
+    if args.snapshot:
+        try:
+            snapshot(args.snapshot, args.scenario, args.seed, args.at)
+        except Exception as exc:  # no GL on this machine: say so plainly
+            print(f"snapshot failed: {exc} (headless rendering needs MUJOCO_GL=egl with "
+                  "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or osmesa with libosmesa6)",
+                  file=sys.stderr)
+            return 2
+        print(f"snapshot: {args.snapshot}")
+        return 0
+
+    from firmware_sim.nodes.simbench import SimulatedBench
+    from protocol.can.busconfig import BusConfigError, resolve_bus_config
+
+    try:
+        config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
+    except BusConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    received: list[int] = []
+
+    def on_signal(signum, frame):
+        received.append(signum)
+        stop.set()
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, on_signal)
+    bench = SimulatedBench(config, seed=args.seed, realtime=args.realtime,
+                           control_period=args.control_period, substeps=args.substeps)
+    mode = "real-time" if args.realtime else "lock-step"
+    print(f"simulator: {len(bench.nodes)} nodes on {config.describe()}, {mode}, "
+          f"{1 / args.control_period:g} Hz", flush=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        bench.close()
+        s = bench.stats
+        print(f"simulator stopped: {s.cycles} cycles, {s.resets} resets, {s.overruns} overruns, "
+              f"physics {1000 * s.step_seconds / max(s.cycles, 1):.2f} ms/cycle", flush=True)
+    return 128 + received[0] if received else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

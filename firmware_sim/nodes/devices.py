@@ -1,0 +1,271 @@
+"""What each device of the simulated bench does: the glue between its CANopen node and the
+simulator (``firmware_sim.simulator.Simulator``).
+
+One ``NodeApplication`` per device type. Raw bus values are converted with the scales in
+``protocol.can.objects``; configuration goes to the firmware boards, whose range and state
+errors become SDO aborts; telemetry is sampled from the simulator after each physics step.
+Reads of stiffness, damping and current limit are live (what the firmware really runs).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from canopen.sdo import SdoAbortedError
+
+from firmware_sim.controllers import ConfigRangeError, ConfigStateError, JointController
+from firmware_sim.nodes.base import Key, NodeApplication
+from protocol.can import objects as o
+from protocol.can.bench import Device
+from protocol.can.objects import Control, Index, Status
+from protocol.can.sdo import AbortCode
+
+if TYPE_CHECKING:
+    from firmware_sim.nodes.simbench import SimulatedBench
+
+SCENARIO_NAMES = {o.Scenario.IDLE: "idle", o.Scenario.BRACING: "bracing", o.Scenario.LIFTING: "lifting"}
+
+
+def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
+    return missing if math.isnan(value) else scale.to_raw(value)
+
+
+class DeviceApp(NodeApplication):
+    """Common behaviour: enable with NMT OPERATIONAL + control word ENABLE, safe state on
+    heartbeat loss, fault reset, status word."""
+
+    def __init__(self, bench: "SimulatedBench", device: Device) -> None:
+        self.bench, self.device = bench, device
+        self.control = Control(0)
+        self.safe = False
+        self.operational = False
+
+    @property
+    def board(self):
+        return self.bench.sim.controller(self.device.name) if self.device.joints else None
+
+    def _update_enable(self) -> None:
+        if self.board is not None:
+            self.board.set_enabled(self.operational and bool(self.control & Control.ENABLE))
+
+    def on_nmt_state(self, state: str) -> None:
+        with self.bench.lock:
+            self.operational = state == "OPERATIONAL"
+            self._update_enable()
+
+    def on_heartbeat_lost(self) -> None:
+        with self.bench.lock:
+            self.safe = True
+            if self.board is not None:
+                self.board.enter_safe_state("agent heartbeat lost")
+
+    def on_reset(self) -> None:
+        self.control, self.safe = Control(0), False
+
+    def on_commands(self, changed: dict[Key, int]) -> None:
+        word = changed.get((Index.CONTROL, 0))
+        if word is not None:
+            self._on_control(Control(word & 0x7))
+
+    def _on_control(self, word: Control) -> None:
+        rising = word & ~self.control
+        self.control = word
+        if rising & Control.FAULT_RESET:
+            self.safe = False
+            if self.board is not None:
+                self.board.clear_faults()
+        self._update_enable()
+
+    def status(self) -> Status:
+        s = Status(0)
+        if self.safe:
+            s |= Status.SAFE_STATE | Status.FAULT
+        board = self.board
+        if board is None:
+            return s | (Status.OPERATION_ENABLED if self.operational and not self.safe else Status(0))
+        bits = [board.status(a) for a in self.device.joints]
+        pairs = ((Status.OPERATION_ENABLED, "enabled"), (Status.SAFE_STATE, "safe_state"),
+                 (Status.OVER_CURRENT, "over_current"), (Status.CURRENT_LIMITING, "current_limiting"),
+                 (Status.POSITION_LIMIT, "position_limit"), (Status.SPLINE_ACTIVE, "spline_active"),
+                 (Status.SPLINE_DONE, "spline_done"), (Status.CABLE_BROKEN, "disconnected"))
+        for flag, name in pairs:
+            if any(getattr(b, name) for b in bits):
+                s |= flag
+        if s & (Status.OVER_CURRENT | Status.CABLE_BROKEN):
+            s |= Status.FAULT
+        return s
+
+    def sample(self) -> None:
+        self.node.set_value(Index.STATUS, 0, int(self.status()))
+
+    def _sample_axes(self, position_scale: o.Scale) -> None:
+        for sub, joint in enumerate(self.device.joints, start=1):
+            a = self.bench.sim.axis(joint)
+            self.node.set_value(Index.POSITION, sub, position_scale.to_raw(a.position))
+            self.node.set_value(Index.VELOCITY, sub, o.VELOCITY.to_raw(a.velocity))
+            self.node.set_value(Index.CURRENT, sub, o.CURRENT.to_raw(a.current))
+            self.node.set_value(Index.VOLTAGE, sub, o.VOLTAGE.to_raw(a.voltage))
+
+    def on_config(self, key: Key, value) -> None:
+        try:
+            with self.bench.lock:
+                self.configure(key, value)
+        except ConfigRangeError as exc:
+            raise SdoAbortedError(AbortCode.VALUE_RANGE) from exc
+        except ConfigStateError as exc:
+            raise SdoAbortedError(AbortCode.DEVICE_STATE) from exc
+
+    def configure(self, key: Key, value) -> None:
+        index, sub = key
+        if index == Index.CURRENT_LIMIT and self.board is not None:
+            self.board.set_current_limit(self.device.joints[sub - 1], o.CURRENT_LIMIT.from_raw(value))
+
+    def read(self, key: Key) -> int | None:
+        index, sub = key
+        if index == Index.STATUS:
+            with self.bench.lock:
+                return int(self.status())
+        if index == Index.CURRENT_LIMIT and self.board is not None and sub:
+            return o.CURRENT_LIMIT.to_raw(self.board.current_limit(self.device.joints[sub - 1]))
+        return None
+
+
+class WheelsApp(DeviceApp):
+    def on_commands(self, changed: dict[Key, int]) -> None:
+        super().on_commands(changed)
+        if (Index.TORQUE_COMMAND, 1) in changed or (Index.TORQUE_COMMAND, 2) in changed:
+            left, right = (max(-20.0, min(20.0, o.TORQUE.from_raw(int(self.node.value(Index.TORQUE_COMMAND, s)))))
+                           for s in (1, 2))
+            self.bench.sim.set_wheel_torque(left, right)
+
+    def sample(self) -> None:
+        super().sample()
+        self._sample_axes(o.WHEEL_POSITION)
+
+
+class JointApp(DeviceApp):
+    """Torso and arm boards: impedance around setpoints, on-board spline tracking."""
+
+    @property
+    def board(self) -> JointController:
+        return self.bench.sim.controller(self.device.name)
+
+    def on_commands(self, changed: dict[Key, int]) -> None:
+        for (index, sub), raw in changed.items():
+            if index == Index.POSITION_SETPOINT:
+                self.board.set_setpoint(self.device.joints[sub - 1], o.POSITION.from_raw(raw))
+        word = changed.get((Index.CONTROL, 0))
+        if word is not None:
+            start = Control(word) & Control.START_SPLINE and not self.control & Control.START_SPLINE
+            self._on_control(Control(word & 0x7))
+            if start:
+                try:
+                    self.board.start_spline()
+                except ConfigStateError:
+                    pass  # status shows SPLINE_ACTIVE never rising; the agent checks it
+
+    def sample(self) -> None:
+        super().sample()
+        self._sample_axes(o.POSITION)
+
+    def configure(self, key: Key, value) -> None:
+        index, sub = key
+        joints = self.device.joints
+        if index in (Index.STIFFNESS, Index.DAMPING):
+            k, d = self.board.impedance(joints[sub - 1])
+            if index == Index.STIFFNESS:
+                k = o.STIFFNESS.from_raw(value)
+            else:
+                d = o.DAMPING.from_raw(value)
+            self.board.set_impedance(joints[sub - 1], k, d)
+        elif index in (Index.POSITION_LIMIT_MIN, Index.POSITION_LIMIT_MAX):
+            lo = o.POSITION.from_raw(int(self.node.value(Index.POSITION_LIMIT_MIN, sub)))
+            hi = o.POSITION.from_raw(int(self.node.value(Index.POSITION_LIMIT_MAX, sub)))
+            if index == Index.POSITION_LIMIT_MIN:
+                lo = o.POSITION.from_raw(value)
+            else:
+                hi = o.POSITION.from_raw(value)
+            self.board.set_position_limits(joints[sub - 1], lo, hi)
+        elif index == Index.VELOCITY_LIMIT:
+            self.board.set_velocity_limit(joints[sub - 1], o.VELOCITY_LIMIT.from_raw(value))
+        elif index == Index.SPLINE_KNOT_COUNT and value:
+            self._load_spline(int(value))
+        else:
+            super().configure(key, value)
+
+    def _load_spline(self, n: int) -> None:
+        """Writing the knot count (last) loads the knots downloaded before into the board."""
+        if n < 2:
+            raise ConfigRangeError("spline.knots", n, 2, o.SPLINE_MAX_KNOTS)
+        v = self.node.value
+        times = [o.KNOT_TIME.from_raw(int(v(Index.SPLINE_KNOT_TIME, k))) for k in range(1, n + 1)]
+        axes = range(1, len(self.device.joints) + 1)
+        pos = [[o.POSITION.from_raw(int(v(o.spline_position_index(a), k))) for a in axes] for k in range(1, n + 1)]
+        vel = [[o.VELOCITY.from_raw(int(v(o.spline_velocity_index(a), k))) for a in axes] for k in range(1, n + 1)]
+        try:
+            self.board.load_spline(times, pos, vel)
+        except ValueError as exc:  # non-increasing times etc.
+            raise ConfigRangeError("spline", n, 2, o.SPLINE_MAX_KNOTS) from exc
+
+    def read(self, key: Key) -> int | None:
+        index, sub = key
+        if index in (Index.STIFFNESS, Index.DAMPING) and sub:
+            k, d = self.board.impedance(self.device.joints[sub - 1])
+            return o.STIFFNESS.to_raw(k) if index == Index.STIFFNESS else o.DAMPING.to_raw(d)
+        return super().read(key)
+
+
+class ImuApp(DeviceApp):
+    def status(self) -> Status:
+        return super().status() | (Status.FALLEN if self.bench.sim.status.fallen else Status(0))
+
+    def sample(self) -> None:
+        imu = self.bench.sim.imu()
+        s = self.status()
+        values = {Index.PITCH: o.PITCH.to_raw(imu.pitch), Index.PITCH_RATE: o.PITCH_RATE.to_raw(imu.pitch_rate),
+                  Index.PITCH_ACCELERATION: o.PITCH_ACCELERATION.to_raw(imu.pitch_acc),
+                  Index.ACCELERATION_X: o.ACCELERATION.to_raw(imu.acc_x),
+                  Index.ACCELERATION_Z: o.ACCELERATION.to_raw(imu.acc_z), Index.STATUS: int(s)}
+        for index, raw in values.items():
+            self.node.set_value(index, 0, raw)
+
+
+class TestBenchApp(DeviceApp):
+    """Scenario, seed, reset, impact trigger and ground truth (simulated benches only)."""
+
+    def configure(self, key: Key, value) -> None:
+        index, _ = key
+        if index == Index.RESET and value == 1:
+            scenario = o.Scenario(int(self.node.value(Index.SCENARIO)))
+            self.bench.reset(SCENARIO_NAMES[scenario], int(self.node.value(Index.SEED)))
+        elif index == Index.IMPACT_TRIGGER and value == 1:
+            if self.bench.sim.scenario != "bracing":
+                raise ConfigStateError("impact trigger outside the bracing scenario")
+            self.bench.sim.trigger_impact()
+        elif index == Index.BALANCE_FREE:
+            self.bench.sim.balance_free = bool(value)
+
+    def read(self, key: Key) -> int | None:
+        index, sub = key
+        if index == Index.STATUS:
+            return super().read(key)
+        with self.bench.lock:
+            t = self.bench.sim.truth
+        if index == Index.IMPACT_MOMENTUM:
+            return _raw(o.MOMENTUM, t.impact_momentum)
+        if index == Index.CABLE_TENSION and sub:
+            return o.TENSION.to_raw((t.cable_tension_left, t.cable_tension_right)[sub - 1])
+        if index == Index.BOTTLE_HEIGHT:
+            return _raw(o.HEIGHT, t.bottle_height, missing=o.HEIGHT.raw_min)
+        if index == Index.BOTTLE_COM_HEIGHT:
+            return _raw(o.HEIGHT, t.bottle_com[2], missing=o.HEIGHT.raw_min)
+        if index == Index.SIM_TIME:
+            return o.SIM_TIME.to_raw(t.sim_time)
+        if index == Index.GROUND_TRUTH_FLAGS:
+            return int((Status.FALLEN if t.fallen else Status(0)) | (Status.CABLE_BROKEN if t.damaged else Status(0))
+                       | (Status.BOTTLE_DROPPED if t.bottle_dropped else Status(0)))
+        return None
+
+
+APPS = {"wheels": WheelsApp, "torso": JointApp, "arm_left": JointApp, "arm_right": JointApp,
+        "imu": ImuApp, "testbench": TestBenchApp}
