@@ -1,0 +1,135 @@
+"""Cost terms from telemetry (pure functions over a ``Trace``; one function per term).
+
+Every integral is a rectangle sum over the SYNC samples, ``sum(f_k) * dt`` (each sample
+stands for one control period). Term names are those of ``protocol.zenoh.TASKS[task]
+.term_names``; weights are configuration (``TASKS[task].default_weights``), never applied here.
+
+bracing:
+    damage       [1]        1.0 if an elbow cable broke (status CABLE_BROKEN in any sample or
+                            EMCY 0xFF10), else 0.0
+    body_acc_sq  [rad^2/s^3] int alpha_ddot^2 dt, alpha_ddot = IMU pitch acceleration
+    arm_power    [J]        int sum_arm I*V dt over the four arm motors (signed: regenerated
+                            energy counts negative, as the motor terminals see it)
+lifting:
+    x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
+                              both wheels, phi relative to the body, so phi + alpha is the
+                              wheel's absolute angle) from the start of the episode
+    xdot_wheel_sq [m^2/s]     int xdot^2 dt, xdot = r (phi_dot + alpha_dot)
+    alpha_sq      [rad^2 s]   int alpha^2 dt (IMU pitch, from vertical)
+    alphadot_sq   [rad^2/s]   int alpha_dot^2 dt
+    h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height from the measured arm
+                              angles and pitch (``RobotParameters.bottle_height``)
+    power         [J]         int sum_all I*V dt over all seven motors (signed)
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+
+import numpy as np
+
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.telemetry import ARM_SLICES, WHEELS_SLICE, Trace
+from protocol.can.objects import EmcyCode, Status
+from protocol.zenoh import TASKS
+
+
+def _integral(values: np.ndarray, dt: float) -> float:
+    return float(np.sum(values) * dt)
+
+
+def damage(trace: Trace, emcy_codes: Iterable[int] = ()) -> float:
+    broken = bool(trace.status_any() & Status.CABLE_BROKEN) or EmcyCode.CABLE_BROKEN in set(emcy_codes)
+    return 1.0 if broken else 0.0
+
+
+def body_acc_sq(trace: Trace) -> float:
+    return _integral(trace.pitch_acc ** 2, trace.dt)
+
+
+def _power(trace: Trace, columns) -> np.ndarray:
+    return (trace.current[:, columns] * trace.voltage[:, columns]).sum(axis=1)
+
+
+def arm_power(trace: Trace) -> float:
+    cols = list(range(ARM_SLICES["left"].start, ARM_SLICES["right"].stop))
+    return _integral(_power(trace, cols), trace.dt)
+
+
+def power(trace: Trace) -> float:
+    return _integral(_power(trace, slice(None)), trace.dt)
+
+
+def wheel_travel(trace: Trace, robot: RobotParameters = UBOT) -> tuple[np.ndarray, np.ndarray]:
+    """Ground travel x [m] from the episode's first sample and its rate xdot [m/s], shape (n,)."""
+    phi = trace.position[:, WHEELS_SLICE].mean(axis=1)
+    phid = trace.velocity[:, WHEELS_SLICE].mean(axis=1)
+    x = robot.wheel_radius * (phi + trace.pitch)
+    x = x - x[0] if len(x) else x
+    return x, robot.wheel_radius * (phid + trace.pitch_rate)
+
+
+def x_wheel_sq(trace: Trace, robot: RobotParameters = UBOT) -> float:
+    return _integral(wheel_travel(trace, robot)[0] ** 2, trace.dt)
+
+
+def xdot_wheel_sq(trace: Trace, robot: RobotParameters = UBOT) -> float:
+    return _integral(wheel_travel(trace, robot)[1] ** 2, trace.dt)
+
+
+def alpha_sq(trace: Trace) -> float:
+    return _integral(trace.pitch ** 2, trace.dt)
+
+
+def alphadot_sq(trace: Trace) -> float:
+    return _integral(trace.pitch_rate ** 2, trace.dt)
+
+
+def bottle_height(trace: Trace, robot: RobotParameters = UBOT) -> np.ndarray:
+    """Bottle height [m] per sample, shape (n,), by forward kinematics."""
+    return robot.bottle_height(trace.position[:, ARM_SLICES["left"]],
+                               trace.position[:, ARM_SLICES["right"]], trace.pitch)
+
+
+def h_error_sq(trace: Trace, goal_height: float, robot: RobotParameters = UBOT) -> float:
+    return _integral((goal_height - bottle_height(trace, robot)) ** 2, trace.dt)
+
+
+def cost_terms(task: str, trace: Trace, *, emcy_codes: Iterable[int] = (),
+               goal_height: float = 1.2, robot: RobotParameters = UBOT) -> dict[str, float]:
+    """Every term of ``task`` by name (exactly ``TASKS[task].term_names``)."""
+    terms: Mapping[str, Callable[[], float]]
+    if task == "bracing":
+        codes = tuple(emcy_codes)
+        terms = {"damage": lambda: damage(trace, codes), "body_acc_sq": lambda: body_acc_sq(trace),
+                 "arm_power": lambda: arm_power(trace)}
+    elif task == "lifting":
+        terms = {"x_wheel_sq": lambda: x_wheel_sq(trace, robot),
+                 "xdot_wheel_sq": lambda: xdot_wheel_sq(trace, robot),
+                 "alpha_sq": lambda: alpha_sq(trace), "alphadot_sq": lambda: alphadot_sq(trace),
+                 "h_error_sq": lambda: h_error_sq(trace, goal_height, robot),
+                 "power": lambda: power(trace)}
+    else:
+        raise KeyError(f"no cost terms for task {task!r}")
+    names = TASKS[task].term_names
+    if set(terms) != set(names):
+        raise AssertionError(f"cost terms {sorted(terms)} != contract {sorted(names)}")
+    return {name: terms[name]() for name in names}
+
+
+def summary(trace: Trace, robot: RobotParameters = UBOT) -> dict[str, float]:
+    """Telemetry figures for the reply (snake_case names, SI units)."""
+    if not len(trace):
+        return {"n_cycles": 0.0}
+    x, xdot = wheel_travel(trace, robot)
+    p_all = _power(trace, slice(None))
+    return {
+        "n_cycles": float(len(trace)),
+        "max_abs_pitch": float(np.abs(trace.pitch).max()),
+        "max_abs_pitch_rate": float(np.abs(trace.pitch_rate).max()),
+        "max_abs_pitch_acc": float(np.abs(trace.pitch_acc).max()),
+        "max_abs_travel_m": float(np.abs(x).max()),
+        "max_abs_speed_m_s": float(np.abs(xdot).max()),
+        "energy_j": _integral(p_all, trace.dt),
+        "peak_current_a": float(np.abs(trace.current).max()),
+        "final_bottle_height_m": float(bottle_height(trace, robot)[-1]),
+    }

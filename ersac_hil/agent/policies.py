@@ -1,0 +1,193 @@
+"""Policies: what a parameter vector theta means to the robot (pure functions, no I/O).
+
+*Bracing* (theta in [0, 1]): the stiffness of all four arm joints, log-linear between
+``k_min`` and ``k_max``::
+
+    K(theta) = k_min * (k_max / k_min) ** theta          [N m/rad], default 5 .. 300
+
+(the useful bracing range of the arm boards, docs/robot_model.md; equal ratios of stiffness
+per equal step of theta), and the damping that gives each joint the damping ratio ``zeta``
+with the inertia it moves (``RobotParameters.arm_inertia`` at the bracing pose)::
+
+    D_j(theta) = 2 zeta sqrt(K(theta) J_j)               [N m s/rad]
+
+The arms hold the bracing pose (shoulder, elbow) for ground contact.
+
+*Lifting* (theta = 4 waypoint positions [rad] + 3 segment durations [s]): a cubic Hermite
+spline in joint space through start pose -> (shoulder_1, elbow_1) -> (shoulder_2, elbow_2) ->
+goal pose, knot times 0, d1, d1 + d2, d1 + d2 + d3; knot velocities by the tangent method
+(finite differences over the neighbouring knots, Catmull-Rom for non-uniform times), zero at
+both ends::
+
+    v_i = (q_i+1 - q_i-1) / (t_i+1 - t_i-1),   v_0 = v_n-1 = 0
+
+Both arms follow the same spline (a symmetric two-handed lift). Times, positions and
+velocities are quantised to what the CAN objects carry (1 ms, 1e-4 rad, 1e-3 rad/s) before
+the spline is checked, so the checked spline is exactly the one the boards receive. The check
+samples the spline densely and refuses it (``LimitViolation``) if any joint leaves its
+position range or exceeds the velocity limit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ersac_hil.agent.errors import LimitViolation
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from protocol.can import objects as obj
+from protocol.can.objects import SPLINE_MAX_KNOTS
+from protocol.zenoh import TASKS
+
+
+@dataclass(frozen=True)
+class ArmImpedance:
+    """Joint impedance of one arm, applied to both: (shoulder, elbow)."""
+    stiffness: tuple[float, float]
+    damping: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class BracingPolicy:
+    """theta -> arm impedance and the bracing pose (see the module docstring).
+
+    Attributes:
+        k_min, k_max: stiffness at theta = 0 and theta = 1 [N m/rad].
+        zeta: damping ratio of each arm joint.
+        pose: (shoulder, elbow) setpoints held during the episode [rad].
+    """
+    k_min: float = 5.0
+    k_max: float = 300.0
+    zeta: float = 0.7
+    pose: tuple[float, float] = (0.5, 0.6)
+    robot: RobotParameters = UBOT
+
+    def __post_init__(self) -> None:
+        if not 0 < self.k_min < self.k_max <= self.robot.stiffness_max or self.zeta <= 0:
+            raise ValueError(f"invalid bracing map {self}")
+
+    def stiffness(self, theta: float) -> float:
+        """K(theta) [N m/rad] for theta in [0, 1]."""
+        spec = TASKS["bracing"]
+        theta = spec.check_theta((theta,))[0]
+        return self.k_min * (self.k_max / self.k_min) ** theta
+
+    def impedance(self, theta: float) -> ArmImpedance:
+        k = self.stiffness(theta)
+        js, je = self.robot.arm_inertia(self.pose[1])
+        d = tuple(min(2 * self.zeta * math.sqrt(k * j), self.robot.damping_max) for j in (js, je))
+        return ArmImpedance((k, k), d)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class Spline:
+    """A cubic Hermite spline for the two axes of one arm (both arms get the same).
+
+    Attributes:
+        times: knot times [s] from the start command, shape ``(n,)``, strictly increasing,
+            ``times[0] == 0``.
+        positions: (shoulder, elbow) at the knots [rad], shape ``(n, 2)``.
+        velocities: [rad/s], shape ``(n, 2)``.
+    """
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def sample(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity at times ``t`` (shape ``(m,)``) -> two ``(m, 2)`` arrays;
+        before the first knot the first position, after the last the last (at rest)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        times = self.times
+        seg = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+        t0, t1 = times[seg], times[seg + 1]
+        h = (t1 - t0)[:, None]
+        s = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)[:, None]
+        q0, q1 = self.positions[seg], self.positions[seg + 1]
+        v0, v1 = self.velocities[seg], self.velocities[seg + 1]
+        s2, s3 = s * s, s * s * s
+        q = ((2 * s3 - 3 * s2 + 1) * q0 + (s3 - 2 * s2 + s) * h * v0
+             + (-2 * s3 + 3 * s2) * q1 + (s3 - s2) * h * v1)
+        qd = ((6 * s2 - 6 * s) * (q0 - q1) / h + (3 * s2 - 4 * s + 1) * v0
+              + (3 * s2 - 2 * s) * v1)
+        after = t >= times[-1]
+        q[after], qd[after] = self.positions[-1], 0.0
+        q[t < times[0]], qd[t < times[0]] = self.positions[0], 0.0
+        return q, qd
+
+
+def tangent_velocities(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Knot velocities by the tangent method: central finite differences over the
+    neighbouring knots, zero at the ends. ``times`` (n,), ``positions`` (n, k) -> (n, k)."""
+    v = np.zeros_like(positions, dtype=float)
+    v[1:-1] = (positions[2:] - positions[:-2]) / (times[2:] - times[:-2])[:, None]
+    return v
+
+
+@dataclass(frozen=True)
+class LiftingPolicy:
+    """theta (7,) -> arm spline (see the module docstring).
+
+    Attributes:
+        goal: (shoulder, elbow) at the end of the lift [rad]: the bottle held at
+            ``goal_height`` with the body upright (docs/agent.md).
+        start: nominal (shoulder, elbow) at the start, used to check a request before the
+            robot is reset; the episode uses the measured start pose.
+        goal_height: target bottle height [m].
+        velocity_limit: joint velocity limit for the check [rad/s].
+        check_dt: sampling step of the limit check [s].
+    """
+    goal_height: float = 1.2
+    goal_elbow: float = 0.3
+    start: tuple[float, float] = (0.0, 0.95)
+    velocity_limit: float = UBOT.arm_velocity_limit
+    check_dt: float = 0.002
+    robot: RobotParameters = UBOT
+
+    @property
+    def goal(self) -> tuple[float, float]:
+        return (self.robot.arm_pose_for_height(self.goal_height, self.goal_elbow), self.goal_elbow)
+
+    def spline(self, theta, start: tuple[float, float] | None = None) -> Spline:
+        """The checked, quantised spline for ``theta`` from ``start`` (default: nominal).
+
+        Raises:
+            protocol.zenoh.InvalidField: theta has the wrong shape or is out of bounds.
+            LimitViolation: the trajectory leaves a joint range or exceeds the velocity limit.
+        """
+        s1, e1, s2, e2, d1, d2, d3 = TASKS["lifting"].check_theta(theta)
+        q_start = self.start if start is None else start
+        times = _quantise(np.cumsum([0.0, d1, d2, d3]), obj.KNOT_TIME)
+        positions = _quantise(np.array([q_start, (s1, e1), (s2, e2), self.goal], dtype=float),
+                              obj.POSITION)
+        velocities = _quantise(tangent_velocities(times, positions), obj.VELOCITY)
+        if len(times) > SPLINE_MAX_KNOTS:
+            raise LimitViolation(f"{len(times)} knots, the arm boards hold {SPLINE_MAX_KNOTS}")
+        spline = Spline(times, positions, velocities)
+        self.check(spline)
+        return spline
+
+    def check(self, spline: Spline) -> None:
+        """Raise ``LimitViolation`` naming the first joint, time and value out of limits."""
+        t = np.arange(0.0, spline.duration + self.check_dt, self.check_dt)
+        q, qd = spline.sample(t)
+        ranges = (self.robot.shoulder_range, self.robot.elbow_range)
+        for k, (name, (lo, hi)) in enumerate(zip(("shoulder", "elbow"), ranges)):
+            bad = np.flatnonzero((q[:, k] < lo) | (q[:, k] > hi))
+            if bad.size:
+                i = bad[0]
+                raise LimitViolation(f"{name} reaches {q[i, k]:.3f} rad at t = {t[i]:.3f} s, "
+                                     f"outside its range [{lo}, {hi}] rad")
+            fast = np.flatnonzero(np.abs(qd[:, k]) > self.velocity_limit)
+            if fast.size:
+                i = fast[0]
+                raise LimitViolation(f"{name} reaches {qd[i, k]:.2f} rad/s at t = {t[i]:.3f} s, "
+                                     f"above the velocity limit {self.velocity_limit} rad/s")
+
+
+def _quantise(values: np.ndarray, scale: obj.Scale) -> np.ndarray:
+    return np.round(np.asarray(values, dtype=float) / scale.factor) * scale.factor

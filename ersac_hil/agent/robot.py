@@ -1,0 +1,198 @@
+"""The robot as the agent knows it: geometry, masses and limits of the uBot-5, and the planar
+(sagittal) kinematics the agent needs - bottle height from measured joint angles and body
+pitch, and the centre of mass of everything above the wheel axle.
+
+The numbers are those of docs/robot_model.md / firmware_sim/plant/ubot.xml (the agent never
+reads the simulator's files; tests/ersac_hil/agent/test_agent_robot.py checks every value here
+against the compiled MJCF).
+
+Planar convention (the robot's sagittal plane, x forward, z up, origin on the wheel axle):
+body pitch ``alpha`` is positive leaning forward; a shoulder angle ``q_s`` is 0 with the arm
+hanging and positive raised forward; an elbow angle ``q_e`` is positive flexed forward. In
+the world the upper arm points at angle ``q_s - alpha`` from straight down, the forearm at
+``q_s + q_e - alpha``::
+
+    shoulder = R(alpha) (0, h_s)
+    hand     = shoulder + L_u (sin(q_s - alpha), -cos(q_s - alpha))
+                        + L_f (sin(q_s + q_e - alpha), -cos(q_s + q_e - alpha))
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Part:
+    """A rigid part for the planar mass model: ``mass`` [kg], centre ``(x, z)`` [m] in its
+    parent frame, pitch inertia ``iyy`` [kg m^2] about its own centre."""
+    mass: float
+    x: float
+    z: float
+    iyy: float
+
+
+def _box(mass: float, z: float, hx: float, hz: float) -> Part:
+    return Part(mass, 0.0, z, mass * (hx * hx + hz * hz) / 3.0)
+
+
+def _rod(mass: float, z: float, length: float, radius: float) -> Part:
+    # capsule ~ solid cylinder along z: m (3 r^2 + L^2) / 12 about a transverse axis
+    return Part(mass, 0.0, z, mass * (3 * radius * radius + length * length) / 12.0)
+
+
+@dataclass(frozen=True)
+class RobotParameters:
+    """Geometry, inertia and limits (SI units). Every ``x``/``z`` is in the frame named in
+    the field's comment; arm parts hang along -z of their link frame at zero angle.
+
+    Attributes:
+        wheel_radius: [m]. wheel_mass / wheel_inertia: per wheel [kg, kg m^2 about the axle].
+        wheel_armature: reflected rotor inertia per wheel drive [kg m^2], acting on the wheel
+            angle relative to the body. wheel_damping: per wheel joint [N m s/rad].
+        wheel_torque_limit: per wheel at the default current limit [N m].
+        lower_body: parts fixed to the base (axle frame). torso_height: torso joint above the
+            axle [m]; torso_parts in the torso frame. shoulder_height: shoulder above the
+            torso frame [m]; half_track, shoulder_y: lateral offsets [m].
+        upper_arm_length: shoulder to elbow [m]; hand_offset: elbow to the hand centre [m]
+            (where the bottle is held). upper_arm / forearm: parts per arm in the link frames.
+        shoulder_range, elbow_range: mechanical joint ranges [rad].
+        arm_velocity_limit: default reference velocity limit of the arm boards [rad/s].
+        stiffness_max, damping_max: what the arm boards accept [N m/rad, N m s/rad].
+        shoulder_armature, elbow_armature: reflected rotor inertias [kg m^2].
+    """
+    wheel_radius: float = 0.10
+    wheel_mass: float = 1.0
+    wheel_inertia: float = 0.5 * 1.0 * 0.10 ** 2
+    wheel_armature: float = 0.00906
+    wheel_damping: float = 0.002
+    wheel_torque_limit: float = 0.0302 * 26 * 10.0
+    half_track: float = 0.155
+    lower_body: tuple[Part, ...] = (_box(8.0, 0.15, 0.07, 0.17), _box(1.4, 0.03, 0.06, 0.04))
+    torso_height: float = 0.32
+    torso_parts: tuple[Part, ...] = (_box(4.0, 0.11, 0.08, 0.11),)
+    shoulder_height: float = 0.20
+    shoulder_y: float = 0.155
+    upper_arm_length: float = 0.30
+    hand_offset: float = 0.32
+    upper_arm: tuple[Part, ...] = (_rod(1.0, -0.15, 0.30, 0.03),)
+    forearm: tuple[Part, ...] = (_rod(0.6, -0.14, 0.28, 0.025),
+                                 Part(0.2, 0.0, -0.32, 0.4 * 0.2 * 0.035 ** 2))
+    shoulder_range: tuple[float, float] = (-1.0, 3.4)
+    elbow_range: tuple[float, float] = (-0.1, 2.6)
+    arm_velocity_limit: float = 10.0
+    stiffness_max: float = 500.0
+    damping_max: float = 50.0
+    shoulder_armature: float = 0.0858
+    elbow_armature: float = 0.0482
+    gravity: float = 9.81
+
+    @property
+    def shoulder_z(self) -> float:
+        """Shoulder height above the wheel axle in the body frame [m]."""
+        return self.torso_height + self.shoulder_height
+
+    @property
+    def axle_height(self) -> float:
+        """Wheel axle above the floor [m] (wheels on flat ground)."""
+        return self.wheel_radius
+
+    # -- kinematics ------------------------------------------------------------------------
+    def hand_position(self, shoulder, elbow, pitch) -> tuple[np.ndarray, np.ndarray]:
+        """Hand centre (x, z) relative to the axle [m], world frame. Inputs broadcast
+        (arrays of shape ``(n,)`` or scalars)."""
+        shoulder, elbow, pitch = (np.asarray(a, dtype=float) for a in (shoulder, elbow, pitch))
+        a1, a2 = shoulder - pitch, shoulder + elbow - pitch
+        x = (self.shoulder_z * np.sin(pitch) + self.upper_arm_length * np.sin(a1)
+             + self.hand_offset * np.sin(a2))
+        z = (self.shoulder_z * np.cos(pitch) - self.upper_arm_length * np.cos(a1)
+             - self.hand_offset * np.cos(a2))
+        return x, z
+
+    def bottle_height(self, left, right, pitch) -> np.ndarray:
+        """Height above the floor [m] of the bottle held between the hands: the mean of the
+        two hand centres. ``left``/``right`` are (shoulder, elbow) arrays of shape ``(n, 2)``
+        or ``(2,)``; ``pitch`` shape ``(n,)`` or scalar."""
+        left, right = np.asarray(left, dtype=float), np.asarray(right, dtype=float)
+        _, zl = self.hand_position(left[..., 0], left[..., 1], pitch)
+        _, zr = self.hand_position(right[..., 0], right[..., 1], pitch)
+        return self.axle_height + 0.5 * (zl + zr)
+
+    def arm_pose_for_height(self, height: float, elbow: float) -> float:
+        """Shoulder angle that puts a hand at ``height`` above the floor with the given elbow
+        angle, body upright, the hand in front of the shoulder (the solution below pi) [rad]."""
+        # z(q) = h_s - L_u cos q - L_f cos(q + e) = A cos(q + phi) form
+        target = height - self.axle_height - self.shoulder_z
+        a = -(self.upper_arm_length + self.hand_offset * math.cos(elbow))
+        b = self.hand_offset * math.sin(elbow)
+        amp, phi = math.hypot(a, b), math.atan2(b, a)   # a cos q + b sin q = amp cos(q - phi)
+        if abs(target) > amp:
+            raise ValueError(f"height {height} m out of reach with elbow {elbow} rad")
+        return phi - math.acos(target / amp)
+
+    # -- mass model ------------------------------------------------------------------------
+    def body_mass(self, payload: float = 0.0) -> float:
+        """Mass above the axle (everything but the wheels) plus a payload at the hands [kg]."""
+        parts = self.lower_body + self.torso_parts + 2 * (self.upper_arm + self.forearm)
+        return sum(p.mass for p in parts) + payload
+
+    def body_com(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0
+                 ) -> tuple[float, float, float]:
+        """Centre of mass ``(x, z)`` [m] in the body frame (axle origin, body upright) and the
+        pitch inertia about it [kg m^2], with the arms at ``left``/``right`` (shoulder, elbow)
+        and ``payload`` kg at the mean hand position."""
+        pts: list[tuple[float, float, float, float]] = []
+        for p in self.lower_body:
+            pts.append((p.mass, p.x, p.z, p.iyy))
+        for p in self.torso_parts:
+            pts.append((p.mass, p.x, self.torso_height + p.z, p.iyy))
+        hands = []
+        for shoulder, elbow in (left, right):
+            for link_angle, origin, parts in ((shoulder, (0.0, self.shoulder_z), self.upper_arm),
+                                              (shoulder + elbow, None, self.forearm)):
+                if origin is None:
+                    origin = (self.upper_arm_length * math.sin(shoulder),
+                              self.shoulder_z - self.upper_arm_length * math.cos(shoulder))
+                s, c = math.sin(link_angle), math.cos(link_angle)
+                for p in parts:
+                    # part at -z along the link: rotate (p.x, p.z) by the link angle
+                    x = origin[0] + p.x * c - p.z * s
+                    z = origin[1] + p.x * s + p.z * c
+                    pts.append((p.mass, x, z, p.iyy))
+            hx, hz = self.hand_position(shoulder, elbow, 0.0)
+            hands.append((float(hx), float(hz)))
+        if payload:
+            pts.append((payload, 0.5 * (hands[0][0] + hands[1][0]),
+                        0.5 * (hands[0][1] + hands[1][1]), 0.0))
+        m = np.array([q[0] for q in pts])
+        x = np.array([q[1] for q in pts])
+        z = np.array([q[2] for q in pts])
+        iyy = np.array([q[3] for q in pts])
+        mass = m.sum()
+        cx, cz = float((m * x).sum() / mass), float((m * z).sum() / mass)
+        inertia = float((iyy + m * ((x - cx) ** 2 + (z - cz) ** 2)).sum())
+        return cx, cz, inertia
+
+    def balance_pitch(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0) -> float:
+        """Body pitch [rad] that puts the centre of mass straight above the axle."""
+        cx, cz, _ = self.body_com(left, right, payload)
+        return -math.atan2(cx, cz)
+
+    def arm_inertia(self, elbow: float = 0.0) -> tuple[float, float]:
+        """Inertia [kg m^2] seen by the shoulder (whole arm, elbow at ``elbow``) and by the
+        elbow (forearm and hand), rotors included."""
+        def about(parts, offset_x, offset_z, angle):
+            s, c = math.sin(angle), math.cos(angle)
+            return sum(p.iyy + p.mass * ((offset_x + p.x * c - p.z * s) ** 2
+                                         + (offset_z + p.x * s + p.z * c) ** 2) for p in parts)
+        elbow_j = about(self.forearm, 0.0, 0.0, 0.0) + self.elbow_armature
+        shoulder_j = (about(self.upper_arm, 0.0, 0.0, 0.0)
+                      + about(self.forearm, 0.0, -self.upper_arm_length, elbow)
+                      + self.shoulder_armature)
+        return shoulder_j, elbow_j
+
+
+UBOT = RobotParameters()
+"""The uBot-5 of this bench."""

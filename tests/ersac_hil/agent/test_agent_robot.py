@@ -1,0 +1,130 @@
+"""ersac_hil.agent.robot against the compiled MJCF of the simulated robot (MuJoCo)."""
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ersac_hil.agent.robot import UBOT
+from firmware_sim.plant.physics import UBOT_XML
+
+ARM_JOINTS = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
+
+
+@pytest.fixture(scope="module")
+def model():
+    return mujoco.MjModel.from_xml_path(str(UBOT_XML))
+
+
+def _jnt(model, name):
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+
+
+def _body(model, name):
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+
+
+def _pose(model, arms, pitch=0.0):
+    """Data with the base upright-then-pitched on its axle at the origin and the arms set."""
+    data = mujoco.MjData(model)
+    root = model.jnt_qposadr[_jnt(model, "root")]
+    data.qpos[root:root + 3] = (0.0, 0.0, UBOT.wheel_radius)
+    data.qpos[root + 3:root + 7] = (math.cos(pitch / 2), 0.0, math.sin(pitch / 2), 0.0)
+    for name, q in zip(ARM_JOINTS, arms):
+        data.qpos[model.jnt_qposadr[_jnt(model, name)]] = q
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def test_geometry_and_joint_data(model):
+    wheel = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "wheel_left")
+    assert model.geom_size[wheel][0] == pytest.approx(UBOT.wheel_radius)
+    wl = _body(model, "wheel_left")
+    assert model.body_mass[wl] == pytest.approx(UBOT.wheel_mass)
+    assert max(model.body_inertia[wl]) == pytest.approx(UBOT.wheel_inertia, rel=1e-6)  # axial
+    assert model.body_pos[wl][1] == pytest.approx(UBOT.half_track)
+    dof = model.jnt_dofadr[_jnt(model, "wheel_left")]
+    assert model.dof_armature[dof] == pytest.approx(UBOT.wheel_armature)
+    assert model.dof_damping[dof] == pytest.approx(UBOT.wheel_damping)
+    assert model.body_pos[_body(model, "torso")][2] == pytest.approx(UBOT.torso_height)
+    assert model.body_pos[_body(model, "upper_arm_left")][2] == pytest.approx(UBOT.shoulder_height)
+    assert model.body_pos[_body(model, "forearm_left")][2] == pytest.approx(-UBOT.upper_arm_length)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "hand_left")
+    assert model.site_pos[site][2] == pytest.approx(-UBOT.hand_offset)
+    for name, rng, arm in (("shoulder_left", UBOT.shoulder_range, UBOT.shoulder_armature),
+                           ("elbow_right", UBOT.elbow_range, UBOT.elbow_armature)):
+        j = _jnt(model, name)
+        assert tuple(model.jnt_range[j]) == pytest.approx(rng)
+        assert model.dof_armature[model.jnt_dofadr[j]] == pytest.approx(arm)
+
+
+def test_wheel_torque_limit_from_motor_constants(model):
+    act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "wheel_left")
+    gear = model.actuator_gear[act][0]
+    kt = model.actuator_gainprm[act][1]  # K = sqrt(Kt Ke) = Kt here
+    assert UBOT.wheel_torque_limit == pytest.approx(kt * gear * 10.0)  # EDS default 10 A
+
+
+def test_body_mass(model):
+    base = _body(model, "base")
+    wheels = sum(model.body_mass[_body(model, w)] for w in ("wheel_left", "wheel_right"))
+    assert UBOT.body_mass() == pytest.approx(model.body_subtreemass[base] - wheels)
+
+
+@settings(max_examples=25, deadline=None)
+@given(arms=st.tuples(st.floats(-1.0, 3.4), st.floats(-0.1, 2.6),
+                      st.floats(-1.0, 3.4), st.floats(-0.1, 2.6)),
+       pitch=st.floats(-0.5, 0.5))
+def test_hand_and_bottle_height_match_mujoco(model, arms, pitch):
+    data = _pose(model, arms, pitch)
+    for side, (s, e) in (("left", arms[:2]), ("right", arms[2:])):
+        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"hand_{side}")
+        x, z = UBOT.hand_position(s, e, pitch)
+        assert data.site_xpos[site][0] == pytest.approx(float(x), abs=1e-9)
+        assert data.site_xpos[site][2] == pytest.approx(float(z) + UBOT.wheel_radius, abs=1e-9)
+    sites = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"hand_{s}") for s in ("left", "right")]
+    assert UBOT.bottle_height(arms[:2], arms[2:], pitch) == pytest.approx(
+        data.site_xpos[sites].mean(axis=0)[2], abs=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(arms=st.tuples(st.floats(-1.0, 3.4), st.floats(-0.1, 2.6),
+                      st.floats(-1.0, 3.4), st.floats(-0.1, 2.6)))
+def test_body_com_and_inertia_match_mujoco(model, arms):
+    data = _pose(model, arms)
+    ids = [i for i in range(1, model.nbody) if model.body_rootid[i] == _body(model, "base")
+           and model.body(i).name not in ("wheel_left", "wheel_right")]
+    m = model.body_mass[ids]
+    com = (m[:, None] * data.xipos[ids]).sum(axis=0) / m.sum()
+    cx, cz, iyy = UBOT.body_com(arms[:2], arms[2:])
+    assert cx == pytest.approx(com[0], abs=1e-9)
+    assert cz + UBOT.wheel_radius == pytest.approx(com[2], abs=1e-9)
+    inertia = 0.0
+    for i, mass in zip(ids, m):
+        rot = data.ximat[i].reshape(3, 3)
+        world = rot @ np.diag(model.body_inertia[i]) @ rot.T
+        d = data.xipos[i] - com
+        inertia += world[1, 1] + mass * (d[0] ** 2 + d[2] ** 2)
+    assert iyy == pytest.approx(inertia, rel=0.02)  # capsules ~ cylinders
+
+
+def test_balance_pitch_puts_com_over_axle():
+    arms = (0.5, 0.6)
+    pitch = UBOT.balance_pitch(arms, arms)
+    cx, cz, _ = UBOT.body_com(arms, arms)
+    assert cx * math.cos(pitch) + cz * math.sin(pitch) == pytest.approx(0.0, abs=1e-12)
+    assert pitch < 0  # arms forward: the body leans back
+
+
+def test_arm_pose_for_height_reaches_it():
+    for elbow in (0.0, 0.3, 0.5):
+        q = UBOT.arm_pose_for_height(1.2, elbow)
+        assert UBOT.bottle_height((q, elbow), (q, elbow), 0.0) == pytest.approx(1.2)
+        x, _ = UBOT.hand_position(q, elbow, 0.0)
+        assert q < math.pi and x > 0  # reaching forward-up, not over the head
+    with pytest.raises(ValueError):
+        UBOT.arm_pose_for_height(2.0, 0.0)
