@@ -1,0 +1,104 @@
+"""Hardware damage and fall detection: the elbow drive cables and the fall detector.
+
+Elbow cable (one per arm). The elbow is cable driven: the motor and gearbox sit in the upper
+arm and a pre-tensioned cable loop over a pulley of radius ``r`` on the elbow carries the
+joint torque to the forearm. The loaded strand carries::
+
+    T = T_pre + |tau_elbow| / r,        tau_elbow = G * (motor torque actually applied)
+
+(the equivalent of a spatial tendon that is taut only on its loaded side, without a second
+tendon per side). When ``T`` exceeds ``breaking_tension`` the cable snaps: the elbow loses its
+transmission and goes limp (zero torque, rotor decoupled) for the rest of the episode. The
+check runs after every physics substep, so torque spikes inside a control period count.
+Stiff bracing arms load the cable most: their impedance torque K * (q_ref - q) grows fastest
+when the hands hit the ground.
+
+Fall detector (once per control period): |pitch| above ``pitch_limit`` or any body/shoulder
+geom touching the floor.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .physics import AXES, Physics
+
+ELBOWS = ("elbow_left", "elbow_right")
+SIDES = ("left", "right")
+FALL_GEOMS = ("chassis", "battery", "torso", "upper_arm_left", "upper_arm_right")
+
+
+@dataclass(frozen=True)
+class CableSpec:
+    """Elbow cable constants. pulley_radius (m), pretension (N), breaking_tension (N)."""
+
+    pulley_radius: float = 0.02
+    pretension: float = 40.0
+    breaking_tension: float = 1300.0
+
+    @property
+    def breaking_torque(self) -> float:
+        """Elbow torque (N m) at which the cable breaks."""
+        return (self.breaking_tension - self.pretension) * self.pulley_radius
+
+
+class ElbowCables:
+    """Tension, peak tension and broken state of both elbow cables, index 0 left, 1 right."""
+
+    def __init__(self, physics: Physics, gear: np.ndarray, spec: CableSpec = CableSpec()) -> None:
+        self.spec = spec
+        idx = [AXES.index(a) for a in ELBOWS]
+        self._act = physics.axes.actuator[idx]
+        self._dof = physics.axes.dof[idx]
+        self._armature0 = physics.model.dof_armature[self._dof].copy()
+        self._physics = physics
+        self._scale = gear[idx] / spec.pulley_radius      # N of tension per N m of motor torque
+        self.tension = np.full(2, spec.pretension)
+        self.peak = self.tension.copy()
+        self.broken = np.zeros(2, dtype=bool)
+
+    def reset(self) -> None:
+        self._physics.model.dof_armature[self._dof] = self._armature0
+        self.tension[:] = self.spec.pretension
+        self.peak[:] = self.spec.pretension
+        self.broken[:] = False
+
+    def update(self, actuator_force: np.ndarray) -> tuple[int, ...]:
+        """After a substep: tension from the applied motor torques (shape (nu_act,)); returns the
+        sides (0/1) that broke in this substep."""
+        t = np.abs(actuator_force[self._act]) * self._scale
+        t += self.spec.pretension
+        t[self.broken] = 0.0
+        self.tension = t
+        np.maximum(self.peak, t, out=self.peak)
+        if t.max() <= self.spec.breaking_tension:
+            return ()
+        snapped = tuple(int(i) for i in np.flatnonzero(t > self.spec.breaking_tension))
+        for i in snapped:
+            self.broken[i] = True
+            # the rotor and gearbox are no longer coupled to the forearm
+            self._physics.model.dof_armature[self._dof[i]] = 0.0
+        return snapped
+
+
+class FallDetector:
+    """Latches ``fallen`` when |pitch| > pitch_limit (rad) or a body/shoulder geom touches the floor."""
+
+    def __init__(self, physics: Physics, pitch_limit: float = 0.8) -> None:
+        self.pitch_limit = pitch_limit
+        self._physics = physics
+        self._geoms = np.array([physics.geom_id(g) for g in FALL_GEOMS])
+        self.fallen = False
+
+    def reset(self) -> None:
+        self.fallen = False
+
+    def update(self, pitch: float) -> bool:
+        """Check the current state; returns True only when the fall is first detected."""
+        if self.fallen:
+            return False
+        if abs(pitch) > self.pitch_limit or self._physics.contacts_with_floor(self._geoms):
+            self.fallen = True
+            return True
+        return False
