@@ -202,6 +202,17 @@ class SlaveNode(canopen.LocalNode):
         od = self._find_object(index, subindex)
         return od.decode_raw(self.get_data(index, subindex))
 
+    def reset_application(self) -> None:
+        """Power-on state of the application (commands forgotten, defaults back) without an
+        NMT reset: what a simulated bench does when it starts a new scenario."""
+        with self._lock:
+            self._pending.clear()
+            for pdo_map in self.rpdo.map.values():
+                for var in pdo_map.map:
+                    self._values.pop((var.index, var.subindex), None)
+            self.app.on_reset()
+            self.app.on_nmt_state(self.nmt.state)
+
     @property
     def operational(self) -> bool:
         return self.nmt._state == OPERATIONAL

@@ -118,8 +118,7 @@ class SimulatedBench:
             for node in self.nodes.values():
                 for index in _CONFIG_INDEXES:
                     node.data_store.pop(index, None)
-                node.app.on_reset()
-                node.app.on_nmt_state(node.nmt.state)
+                node.reset_application()
 
     def close(self) -> None:
         self._stop.set()
