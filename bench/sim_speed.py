@@ -1,0 +1,106 @@
+"""Simulator speed: bare physics real-time factor per scenario, and lock-step cycles per
+second through the whole CAN stack (SimulatedBench nodes <-> a canopen master) per backend.
+
+    python bench/sim_speed.py [--cycles N]
+
+Prints a table; no pass/fail. One lock-step cycle = the master sends the wheel and arm RPDOs
+and SYNC, the bench applies them, steps 5 ms of physics, and the master waits for all 13
+synchronous TPDOs.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import canopen  # noqa: E402
+
+from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
+from firmware_sim.simulator import Simulator  # noqa: E402
+from protocol.can import cobid  # noqa: E402
+from protocol.can.bench import BENCH, object_dictionary  # noqa: E402
+from protocol.can.busconfig import BusConfig, open_bus  # noqa: E402
+from protocol.can.pdo import cyclic_pdos  # noqa: E402
+
+
+def physics_rtf(scenario: str, seconds: float = 4.0) -> float:
+    sim = Simulator()
+    sim.reset(scenario, 0)
+    n = int(seconds / sim.control_period)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        sim.step()
+    return seconds / (time.perf_counter() - t0)
+
+
+def can_cycles_per_second(config: BusConfig, cycles: int) -> tuple[float, float, float]:
+    """(cycles/s, p50 ms, p99 ms) of lock-step cycles over ``config``."""
+    bench = SimulatedBench(config)
+    net = canopen.Network(open_bus(config)).connect()
+    try:
+        nodes = [net.add_node(d.node_id, object_dictionary(d)) for d in BENCH]
+        tpdos = [p.cob_id for p in cyclic_pdos() if p.direction == "tpdo"]
+        got = threading.Semaphore(0)
+        for c in tpdos:
+            net.subscribe(c, lambda *a: got.release())
+        rpdos = []
+        for node in nodes:
+            node.rpdo.read(from_od=True)
+            rpdos += [m for m in node.rpdo.map.values() if m.enabled]
+        net.nmt.state = "OPERATIONAL"
+        time.sleep(0.1)
+        lat = []
+        t_start = time.perf_counter()
+        for _ in range(cycles):
+            t0 = time.perf_counter()
+            for m in rpdos:
+                m.transmit()
+            net.send_message(cobid.SYNC, b"")
+            for _ in tpdos:
+                if not got.acquire(timeout=1.0):
+                    raise RuntimeError("TPDO missing")
+            lat.append(time.perf_counter() - t0)
+        total = time.perf_counter() - t_start
+    finally:
+        net.disconnect()
+        bench.close()
+    lat.sort()
+    return cycles / total, 1000 * lat[len(lat) // 2], 1000 * lat[int(0.99 * (len(lat) - 1))]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--cycles", type=int, default=1000)
+    args = ap.parse_args()
+    print("physics only (Simulator.step, 5 ms period, 5 substeps, no commands):")
+    print(f"{'scenario':<10} {'real-time factor':>17}")
+    for scenario in ("idle", "bracing", "lifting"):
+        print(f"{scenario:<10} {physics_rtf(scenario):>16.1f}x", flush=True)
+    print(f"\nlock-step through the CAN stack ({args.cycles} cycles, 4 RPDOs + SYNC + 13 TPDOs each):")
+    print(f"{'backend':<32} {'cycles/s':>9} {'RTF':>6} {'p50 ms':>7} {'p99 ms':>7}")
+    backends: list[tuple[str, object]] = [("virtual", lambda: BusConfig("virtual", "bench-speed"))]
+    backends.append(("remote (loopback hub)", None))
+    vc = vcan_status()
+    for name, make in backends:
+        if make is None:
+            with LoopbackHub() as hub:
+                rate, p50, p99 = can_cycles_per_second(hub.bus_config, args.cycles)
+        else:
+            rate, p50, p99 = can_cycles_per_second(make(), args.cycles)
+        print(f"{name:<32} {rate:>9.0f} {rate * 0.005:>5.1f}x {p50:>7.2f} {p99:>7.2f}", flush=True)
+    if vc.available:
+        rate, p50, p99 = can_cycles_per_second(BusConfig("socketcan", "vcan0"), args.cycles)
+        print(f"{'socketcan vcan0':<32} {rate:>9.0f} {rate * 0.005:>5.1f}x {p50:>7.2f} {p99:>7.2f}")
+    else:
+        print(f"{'socketcan vcan0':<32} skipped: {vc.reason}")
+
+
+if __name__ == "__main__":
+    main()

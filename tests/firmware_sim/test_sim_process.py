@@ -1,0 +1,53 @@
+"""``ersac-hil sim`` as a process on the loopback hub: boots its nodes, answers SDO, and
+shuts down cleanly on SIGTERM and SIGINT."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import canopen
+import pytest
+
+from ersac_hil.canbus import LoopbackHub
+from protocol.can.bench import BENCH, TESTBENCH, object_dictionary
+from protocol.can.busconfig import open_bus
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_sim_process_serves_the_bench_and_stops_on_signal(sig):
+    with LoopbackHub() as hub:
+        net = canopen.Network(open_bus(hub.bus_config)).connect()
+        booted: set[int] = set()
+        for d in BENCH:
+            net.subscribe(0x700 + d.node_id, lambda cid, data, ts: booted.add(cid & 0x7F))
+        proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "sim", "--bus-interface", "remote",
+                                 "--bus-channel", hub.url, "--seed", "3"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert proc.stdout.readline().startswith("simulator: 6 nodes on remote:")
+            deadline = time.monotonic() + 5
+            while booted != {d.node_id for d in BENCH} and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert booted == {d.node_id for d in BENCH}
+            tb = net.add_node(TESTBENCH.node_id, object_dictionary(TESTBENCH))
+            assert tb.sdo[0x1018][2].raw == object_dictionary(TESTBENCH)[0x1018][2].default
+            proc.send_signal(sig)
+            out, err = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            net.disconnect()
+        assert proc.returncode == 128 + sig, err
+        assert "simulator stopped" in out
+        assert "Traceback" not in err
+
+
+def test_bad_bus_config_is_refused_clearly():
+    r = subprocess.run([sys.executable, "-m", "firmware_sim", "--bus-interface", "remote",
+                        "--bus-channel", "ws://10.0.0.1:9/"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "loopback" in r.stderr
