@@ -52,7 +52,8 @@ class RobotParameters:
         wheel_radius: [m]. wheel_mass / wheel_inertia: per wheel [kg, kg m^2 about the axle].
         wheel_armature: reflected rotor inertia per wheel drive [kg m^2], acting on the wheel
             angle relative to the body. wheel_damping: per wheel joint [N m s/rad].
-        wheel_torque_limit: per wheel at the default current limit [N m].
+        wheel_kt, wheel_gear, wheel_current_limit: wheel motor torque constant [N m/A],
+            reduction and the driver's current limit [A].
         lower_body: parts fixed to the base (axle frame). torso_height: torso joint above the
             axle [m]; torso_parts in the torso frame. shoulder_height: shoulder above the
             torso frame [m]; half_track, shoulder_y: lateral offsets [m].
@@ -68,7 +69,9 @@ class RobotParameters:
     wheel_inertia: float = 0.5 * 1.0 * 0.10 ** 2
     wheel_armature: float = 0.00906
     wheel_damping: float = 0.002
-    wheel_torque_limit: float = 0.0302 * 26 * 10.0
+    wheel_kt: float = 0.0302
+    wheel_gear: float = 26.0
+    wheel_current_limit: float = 3.0
     half_track: float = 0.155
     lower_body: tuple[Part, ...] = (_box(8.0, 0.15, 0.07, 0.17), _box(1.4, 0.03, 0.06, 0.04))
     torso_height: float = 0.32
@@ -88,6 +91,11 @@ class RobotParameters:
     shoulder_armature: float = 0.0858
     elbow_armature: float = 0.0482
     gravity: float = 9.81
+
+    @property
+    def wheel_torque_limit(self) -> float:
+        """Largest torque per wheel [N m] (at the driver's current limit)."""
+        return self.wheel_kt * self.wheel_gear * self.wheel_current_limit
 
     @property
     def shoulder_z(self) -> float:

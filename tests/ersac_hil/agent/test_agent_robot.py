@@ -64,9 +64,11 @@ def test_geometry_and_joint_data(model):
 
 def test_wheel_torque_limit_from_motor_constants(model):
     act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "wheel_left")
-    gear = model.actuator_gear[act][0]
+    assert model.actuator_gear[act][0] == pytest.approx(UBOT.wheel_gear)
     kt = model.actuator_gainprm[act][1]  # K = sqrt(Kt Ke) = Kt here
-    assert UBOT.wheel_torque_limit == pytest.approx(kt * gear * 10.0)  # EDS default 10 A
+    assert kt == pytest.approx(UBOT.wheel_kt)
+    assert model.actuator_forcerange[act][1] / kt == pytest.approx(UBOT.wheel_current_limit)
+    assert UBOT.wheel_torque_limit == pytest.approx(model.actuator_forcerange[act][1] * UBOT.wheel_gear)
 
 
 def test_body_mass(model):
