@@ -1,0 +1,64 @@
+"""SDO configuration of the bench before an episode (the I/O edge of the policies).
+
+All values in SI units, scaled with ``protocol.can.objects``; a refusal by a controller
+raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``.
+"""
+from __future__ import annotations
+
+import math
+
+from ersac_hil.agent.bus import AgentBus
+from ersac_hil.agent.policies import ArmImpedance, Spline
+from protocol.can import objects as obj
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH, Device
+from protocol.can.objects import Index, Scenario, spline_position_index, spline_velocity_index
+
+ARMS: tuple[Device, ...] = (ARM_LEFT, ARM_RIGHT)
+
+
+def reset_scenario(bus: AgentBus, scenario: Scenario, seed: int) -> None:
+    """Test bench: scenario, seed, then the reset command (the bench confirms the SDO once the
+    scenario is in its initial state and every board is back at its power-on defaults)."""
+    bus.write(TESTBENCH, Index.SCENARIO, 0, int(scenario))
+    bus.write(TESTBENCH, Index.SEED, 0, int(seed))
+    bus.write(TESTBENCH, Index.RESET, 0, 1)
+
+
+def apply_impedance(bus: AgentBus, impedance: ArmImpedance, arms: tuple[Device, ...] = ARMS) -> None:
+    """Stiffness and damping of (shoulder, elbow) on every arm."""
+    for arm in arms:
+        for sub, (k, d) in enumerate(zip(impedance.stiffness, impedance.damping), start=1):
+            bus.write(arm, Index.STIFFNESS, sub, k, obj.STIFFNESS)
+            bus.write(arm, Index.DAMPING, sub, d, obj.DAMPING)
+
+
+def download_spline(bus: AgentBus, arm: Device, spline: Spline) -> None:
+    """Knot times, positions and velocities of both axes, then the knot count (the board
+    validates and loads the spline when the count is written; START_SPLINE starts it)."""
+    for k, t in enumerate(spline.times, start=1):
+        bus.write(arm, Index.SPLINE_KNOT_TIME, k, float(t), obj.KNOT_TIME)
+        for axis in (1, 2):
+            bus.write(arm, spline_position_index(axis), k, float(spline.positions[k - 1, axis - 1]),
+                      obj.POSITION)
+            bus.write(arm, spline_velocity_index(axis), k, float(spline.velocities[k - 1, axis - 1]),
+                      obj.VELOCITY)
+    bus.write(arm, Index.SPLINE_KNOT_COUNT, 0, len(spline.times))
+
+
+def read_ground_truth(bus: AgentBus, task: str) -> dict[str, float]:
+    """Test-bench readouts for the telemetry summary (simulated benches only; finite values)."""
+    out: dict[str, float] = {}
+    flags = obj.Status(int(bus.read(TESTBENCH, Index.GROUND_TRUTH_FLAGS)))
+    out["bench_damaged"] = float(bool(flags & obj.Status.CABLE_BROKEN))
+    out["bench_fallen"] = float(bool(flags & obj.Status.FALLEN))
+    if task == "bracing":
+        out["bench_impact_momentum_ns"] = float(bus.read(TESTBENCH, Index.IMPACT_MOMENTUM, 0, obj.MOMENTUM))
+        for sub, side in ((1, "left"), (2, "right")):
+            out[f"bench_cable_tension_{side}_n"] = float(
+                bus.read(TESTBENCH, Index.CABLE_TENSION, sub, obj.TENSION))
+    elif task == "lifting":
+        raw = int(bus.read(TESTBENCH, Index.BOTTLE_HEIGHT))
+        if raw != obj.HEIGHT.raw_min:
+            out["bench_bottle_height_m"] = obj.HEIGHT.from_raw(raw)
+        out["bench_bottle_dropped"] = float(bool(flags & obj.Status.BOTTLE_DROPPED))
+    return {k: v for k, v in out.items() if math.isfinite(v)}

@@ -1,0 +1,303 @@
+"""One episode, from request to result: reset, configure, SYNC loop with LQR, cost.
+
+    runner = EpisodeRunner(bus)
+    plan = runner.plan(request)          # pure: refuses (RequestRefused) before touching anything
+    result = runner.run(plan)            # EpisodeResult, never raises for hardware faults
+
+``run``:
+1. the cyclic nodes must be on the bus (``NodeMissing`` -> ``fault_simulator``);
+2. reset: through the test-bench node when present (scenario, seed, reset command), else wait
+   for the go signal of a person who reset the robot (``go(timeout) -> bool``);
+3. configure by SDO in PRE-OPERATIONAL (bracing: arm impedance), NMT start; lifting: after the
+   first cycle, the spline from the measured start pose by SDO, started with the next SYNC;
+4. the SYNC loop (lock-step unless the bus is real-time): RPDOs with the LQR wheel torques and
+   the arm setpoints, SYNC, TPDOs; ends after T = ``TASKS[task].horizon_s`` or, lifting, at the
+   goal (spline finished, bottle within ``goal_tolerance_m`` of the goal height and ground speed
+   below ``rest_speed_m_s`` for ``rest_s``);
+5. NMT pre-operational (the boards drop their torque), cost terms from the trace.
+
+A fault (PDO timeout, heartbeat lost, EMCY that is not a task outcome, bus down) ends the loop
+at once; the result then carries the fault's status, the counters and the telemetry summary of
+the cycles before it, and no cost terms at all (a cost never mixes valid and missing data).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ersac_hil.agent import configure, costs
+from ersac_hil.agent.bus import AgentBus, EmcyEvent
+from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
+from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
+from ersac_hil.agent.policies import ArmImpedance, BracingPolicy, LiftingPolicy, Spline
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH
+from protocol.can.objects import Control, EmcyCode, Scenario, Status
+from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
+
+OUTCOME_EMCY = {EmcyCode.CABLE_BROKEN: "hardware_damage", EmcyCode.OVER_CURRENT: "over_current",
+                EmcyCode.FALLEN: "fallen", EmcyCode.BOTTLE_DROPPED: "bottle_dropped"}
+"""EMCY codes that are task outcomes (failure flags), not faults."""
+OUTCOME_STATUS = {Status.CABLE_BROKEN: "hardware_damage", Status.OVER_CURRENT: "over_current",
+                  Status.FALLEN: "fallen", Status.BOTTLE_DROPPED: "bottle_dropped"}
+SCENARIOS = {"bracing": Scenario.BRACING, "lifting": Scenario.LIFTING}
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    """What the agent does with a request (configuration, not code).
+
+    Attributes:
+        weights: per task, the cost weights of the reply's ``total_cost`` (default the
+            contract's ``default_weights``; the learner re-weights the terms anyway).
+        lifting_payload_kg: the bottle, for the balance reference and the LQR model.
+        goal_tolerance_m, rest_speed_m_s, rest_s: the lifting end condition.
+        go_timeout_s: how long to wait for the go signal without a test bench.
+        node_timeout_s: how long the cyclic nodes may take to show up.
+    """
+    bracing: BracingPolicy = BracingPolicy()
+    lifting: LiftingPolicy = LiftingPolicy()
+    lqr: LqrWeights = LqrWeights()
+    weights: Mapping[str, Mapping[str, float]] = field(
+        default_factory=lambda: {name: dict(spec.default_weights) for name, spec in TASKS.items()})
+    lifting_payload_kg: float = 1.0
+    goal_tolerance_m: float = 0.05
+    rest_speed_m_s: float = 0.05
+    rest_s: float = 0.25
+    go_timeout_s: float = 600.0
+    node_timeout_s: float = 1.0
+    robot: RobotParameters = UBOT
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated request and what it means for the robot."""
+    request: EpisodeRequest
+    n_cycles: int
+    bracing_pose: tuple[float, float] | None = None
+    impedance: ArmImpedance | None = None
+    spline: Spline | None = None
+
+
+@dataclass
+class _Run:
+    """Mutable record of one episode in progress."""
+    samples: list[Telemetry] = field(default_factory=list)
+    failures: dict[str, bool] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    status: str = "ok"
+    detail: str = ""
+    emcy: list[EmcyEvent] = field(default_factory=list)
+    truth: dict[str, float] = field(default_factory=dict)
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counts[name] = self.counts.get(name, 0) + n
+
+
+class EpisodeRunner:
+    """Runs episodes on an open ``AgentBus`` (one at a time; the caller serialises)."""
+
+    def __init__(self, bus: AgentBus, config: EpisodeConfig = EpisodeConfig(),
+                 go: Callable[[float], bool] | None = None) -> None:
+        self.bus, self.config, self.go = bus, config, go
+        self.stop_requested = threading.Event()
+        self._designs: dict[str, BalanceDesign] = {}
+
+    # -- planning (pure) -------------------------------------------------------------------
+    def plan(self, request: EpisodeRequest) -> Plan:
+        """Validate ``request`` against the robot; ``RequestRefused`` if it must not run."""
+        spec = TASKS[request.task]
+        n = int(round(spec.horizon_s / self.bus.timing.period_s))
+        if request.task == "bracing":
+            policy = self.config.bracing
+            return Plan(request, n, bracing_pose=policy.pose, impedance=policy.impedance(request.theta[0]))
+        if request.task == "lifting":
+            return Plan(request, n, spline=self.config.lifting.spline(request.theta))
+        raise KeyError(f"task {request.task!r} has no policy on this agent")
+
+    def design(self, task: str) -> BalanceDesign:
+        """The LQR design of ``task`` (cached): the robot at the task's nominal pose."""
+        if task not in self._designs:
+            cfg = self.config
+            pose = cfg.bracing.pose if task == "bracing" else cfg.lifting.start
+            payload = cfg.lifting_payload_kg if task == "lifting" else 0.0
+            model = PendulumModel.from_robot(cfg.robot, pose, pose, payload)
+            self._designs[task] = BalanceDesign.compute(model, self.bus.timing.period_s, cfg.lqr)
+        return self._designs[task]
+
+    # -- the episode ------------------------------------------------------------------------
+    def run(self, plan: Plan) -> EpisodeResult:
+        """Run ``plan``; hardware faults end up in the result's status, never as exceptions.
+        ``RequestRefused`` (a spline from the measured start out of limits, a refused
+        configuration) propagates: nothing moved."""
+        request = plan.request
+        wall0 = time.monotonic()
+        run = _Run()
+        self.stop_requested.clear()
+        bus = self.bus
+        emcy_mark = bus.emcy_count
+        started = testbench = False
+        try:
+            bus.wait_for_nodes(CYCLIC, timeout_s=self.config.node_timeout_s)
+            bus.nmt_preop()
+            testbench = bus.present(TESTBENCH)
+            if testbench:
+                configure.reset_scenario(bus, SCENARIOS[request.task], request.seed)
+            elif not self._wait_go():
+                run.status, run.detail = "aborted", "no go signal: the robot was not reset"
+                return self._result(plan, run, wall0)
+            emcy_mark = bus.emcy_count
+            first = self._configure(plan)
+            bus.nmt_start()
+            started = True
+            self._loop(plan, run, first, emcy_mark)
+        except AgentFault as exc:
+            run.status, run.detail = exc.status, str(exc)
+            run.count(_fault_counter(exc))
+        finally:
+            if started:
+                try:
+                    bus.nmt_preop()
+                except AgentFault:
+                    pass
+        if testbench and run.status == "ok":
+            try:  # best effort: ground truth for the summary
+                run.truth = configure.read_ground_truth(bus, request.task)
+            except AgentFault:
+                pass
+        run.emcy = bus.emcy_events(emcy_mark)
+        return self._result(plan, run, wall0)
+
+    def _wait_go(self) -> bool:
+        return bool(self.go is not None and self.go(self.config.go_timeout_s))
+
+    def _configure(self, plan: Plan) -> Commands:
+        """SDO configuration before NMT start; returns the first cycle's commands (every board
+        enabled, the arms holding the bracing pose or the nominal lifting start)."""
+        if plan.request.task == "bracing":
+            configure.apply_impedance(self.bus, plan.impedance)  # type: ignore[arg-type]
+            pose = plan.bracing_pose
+        else:
+            pose = self.config.lifting.start
+        return Commands(arm_left=pose, arm_right=pose)  # type: ignore[arg-type]
+
+    def _start_spline(self, plan: Plan, tel: Telemetry) -> Commands:
+        """Lifting, after the first cycle: the spline from the *measured* start pose of each arm
+        (limits checked again), downloaded by SDO; the next cycle's START_SPLINE starts it."""
+        poses = {}
+        for arm, side in ((ARM_LEFT, "left"), (ARM_RIGHT, "right")):
+            poses[side] = tuple(float(q) for q in tel.arm_positions(side))
+            spline = self.config.lifting.spline(plan.request.theta, poses[side])
+            configure.download_spline(self.bus, arm, spline)
+        return Commands(arm_left=poses["left"], arm_right=poses["right"],  # type: ignore[arg-type]
+                        arm_control=Control.ENABLE | Control.START_SPLINE)
+
+    def _loop(self, plan: Plan, run: _Run, commands: Commands, emcy_mark: int) -> None:
+        bus, task = self.bus, plan.request.task
+        payload = self.config.lifting_payload_kg if task == "lifting" else 0.0
+        ctl = BalanceController(self.design(task), self.config.robot, payload)
+        bus.reset_pacing()
+        overruns0 = bus.overruns
+        rest_needed = int(round(self.config.rest_s / bus.timing.period_s))
+        rest = 0
+        spline_cycles = (1 + int(math.ceil(plan.spline.duration / bus.timing.period_s))
+                         if plan.spline is not None else 0)
+        try:
+            tel = bus.cycle(commands)
+            ctl.start(tel)
+            run.samples.append(tel)
+            if plan.spline is not None:
+                commands = self._start_spline(plan, tel)
+            while len(run.samples) < plan.n_cycles:
+                if self.stop_requested.is_set():
+                    run.status, run.detail = "aborted", "stopped on request"
+                    return
+                self._check_emcy(run, emcy_mark)
+                self._flags(run, tel)
+                left, right = ctl.torque(tel)
+                commands = Commands(wheel_torque=(left, right), torso_position=commands.torso_position,
+                                    arm_left=commands.arm_left, arm_right=commands.arm_right,
+                                    arm_control=commands.arm_control)
+                tel = bus.cycle(commands)
+                run.samples.append(tel)
+                if task == "lifting" and len(run.samples) > spline_cycles:
+                    rest = rest + 1 if self._at_goal(tel) else 0
+                    if rest >= rest_needed:
+                        run.detail = f"goal reached at {len(run.samples) * bus.timing.period_s:.3f} s"
+                        break
+            self._check_emcy(run, emcy_mark)
+            self._flags(run, tel)
+        finally:
+            run.count("late_cycles", bus.overruns - overruns0)
+            run.count("saturated_cycles", ctl.saturated_cycles)
+            if ctl.fallen:
+                run.failures["fallen"] = True
+
+    def _at_goal(self, tel: Telemetry) -> bool:
+        robot, cfg = self.config.robot, self.config
+        h = float(robot.bottle_height(tel.arm_positions("left"), tel.arm_positions("right"), tel.pitch))
+        speed = robot.wheel_radius * (float(np.mean(tel.wheel_velocities)) + tel.pitch_rate)
+        return abs(h - cfg.lifting.goal_height) < cfg.goal_tolerance_m and abs(speed) < cfg.rest_speed_m_s
+
+    def _check_emcy(self, run: _Run, emcy_mark: int) -> None:
+        events = self.bus.emcy_events(emcy_mark + len(run.emcy))
+        for ev in events:
+            run.emcy.append(ev)
+            if ev.code == EmcyCode.NO_ERROR:
+                continue
+            flag = OUTCOME_EMCY.get(ev.code)  # type: ignore[call-overload]
+            if flag is not None:
+                run.failures[flag] = True
+            elif ev.code == EmcyCode.HEARTBEAT_LOST:
+                raise HeartbeatLost(f"{ev.device} (lost the agent's heartbeat, EMCY 0x8130)", None,
+                                    self.bus.timing.heartbeat_timeout_s)
+            else:
+                raise EmcyFault(f"EMCY 0x{ev.code:04X} from {ev.device} (register 0x{ev.register:02X})")
+
+    @staticmethod
+    def _flags(run: _Run, tel: Telemetry) -> None:
+        status = tel.any_status
+        for bit, flag in OUTCOME_STATUS.items():
+            if status & bit:
+                run.failures[flag] = True
+
+    def _result(self, plan: Plan, run: _Run, wall0: float) -> EpisodeResult:
+        request = plan.request
+        period = self.bus.timing.period_s
+        trace = Trace.from_samples(run.samples, period)
+        run.count("emcy", len(run.emcy))
+        summary = costs.summary(trace, self.config.robot) if len(trace) else {"n_cycles": 0.0}
+        if request.task != "lifting":
+            summary.pop("final_bottle_height_m", None)
+        if len(trace):
+            lat = np.array([s.latency_s for s in run.samples]) * 1000.0
+            summary["sync_latency_p50_ms"] = float(np.percentile(lat, 50))
+            summary["sync_latency_p99_ms"] = float(np.percentile(lat, 99))
+        summary.update(run.truth)
+        terms: dict[str, float] = {}
+        total = None
+        if run.status == "ok":
+            codes = [ev.code for ev in run.emcy]
+            terms = costs.cost_terms(request.task, trace, emcy_codes=codes,
+                                     goal_height=self.config.lifting.goal_height, robot=self.config.robot)
+            if terms.get("damage"):
+                run.failures["hardware_damage"] = True
+            total = TASKS[request.task].total_cost(terms, self.config.weights.get(request.task))
+        failures = {flag: run.failures.get(flag, False) for flag in
+                    ("hardware_damage", "over_current", "fallen", "bottle_dropped")}
+        return EpisodeResult(
+            episode_id=request.episode_id, task=request.task, status=run.status,
+            cost_terms=terms, total_cost=total, failures=failures,
+            duration_s=len(trace) * period, wall_s=time.monotonic() - wall0,
+            telemetry=summary, fault_counts=dict(run.counts), detail=run.detail[:4096])
+
+
+def _fault_counter(exc: AgentFault) -> str:
+    return {"fault_pdo_timeout": "pdo_timeouts", "fault_heartbeat": "heartbeat_lost",
+            "fault_emcy": "emcy_faults"}.get(exc.status, "bus_faults")
