@@ -1,0 +1,135 @@
+"""Episodes of the real agent against the real simulated bench (in-process, virtual bus)."""
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from ersac_hil.agent.bus import AgentBus, BusTiming
+from ersac_hil.agent.configure import reset_scenario
+from ersac_hil.agent.episode import EpisodeRunner
+from ersac_hil.agent.lqr import BalanceController
+from ersac_hil.agent.telemetry import Commands
+from firmware_sim.nodes.simbench import SimulatedBench
+from protocol.can.busconfig import BusConfig
+from protocol.can.objects import Scenario
+from protocol.zenoh import EpisodeRequest
+
+pytestmark = pytest.mark.timeout(120)
+SENSIBLE_LIFT = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
+
+
+def new_config() -> BusConfig:
+    return BusConfig("virtual", f"ep-{uuid.uuid4().hex[:8]}")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    config = new_config()
+    bench = SimulatedBench(config)
+    bus = AgentBus(config).open()
+    bus.wait_for_nodes()
+    yield bench, bus, EpisodeRunner(bus)
+    bus.close()
+    bench.close()
+
+
+def run(runner, task, theta, seed=0, episode_id="ep"):
+    return runner.run(runner.plan(EpisodeRequest(episode_id, task, theta, seed)))
+
+
+def test_bracing_stiffness_changes_the_cost_and_stiff_arms_break_cables(rig):
+    _, _, runner = rig
+    results = {theta: [run(runner, "bracing", (theta,), seed) for seed in (0, 1, 2)]
+               for theta in (0.0, 1.0)}
+    for rs in results.values():
+        assert all(r.status == "ok" and r.duration_s == pytest.approx(2.0) for r in rs)
+        assert all(set(r.cost_terms) == {"damage", "body_acc_sq", "arm_power"} for r in rs)
+    soft = [r.total_cost for r in results[0.0]]
+    stiff = [r.total_cost for r in results[1.0]]
+    assert np.mean(stiff) != pytest.approx(np.mean(soft), rel=0.1)
+    assert any(r.cost_terms["damage"] == 1.0 and r.failed("hardware_damage") for r in results[1.0])
+    assert not any(r.cost_terms["damage"] for r in results[0.0])
+    damaged = [r for r in results[1.0] if r.cost_terms["damage"]]
+    assert all(r.telemetry["bench_damaged"] == 1.0 for r in damaged)  # agrees with ground truth
+
+
+def test_same_seed_same_theta_same_cost(rig):
+    _, _, runner = rig
+    a = run(runner, "bracing", (0.4,), seed=7)
+    b = run(runner, "bracing", (0.4,), seed=7)
+    assert a.cost_terms == b.cost_terms
+
+
+def test_sensible_spline_lifts_the_bottle_and_ends_at_the_goal(rig):
+    _, _, runner = rig
+    r = run(runner, "lifting", SENSIBLE_LIFT, seed=0)
+    assert r.status == "ok" and not r.failed("bottle_dropped") and not r.failed("fallen")
+    assert r.telemetry["final_bottle_height_m"] == pytest.approx(1.2, abs=0.05)
+    assert r.telemetry["bench_bottle_height_m"] == pytest.approx(1.2, abs=0.05)  # FK vs truth
+    assert r.duration_s < 6.0 and "goal reached" in r.detail
+    assert set(r.cost_terms) == {"x_wheel_sq", "xdot_wheel_sq", "alpha_sq", "alphadot_sq",
+                                 "h_error_sq", "power"}
+
+
+def test_balances_ten_seconds_over_can_without_arm_motion(rig):
+    bench, bus, runner = rig
+    bus.nmt_preop()
+    reset_scenario(bus, Scenario.IDLE, 3)
+    pose = (0.0, 1.2)
+    ctl = BalanceController(runner.design("bracing"))
+    bus.nmt_start()
+    try:
+        tel = bus.cycle(Commands(arm_left=pose, arm_right=pose))
+        ctl.start(tel)
+        x0 = bench.sim.truth.base_x
+        for _ in range(2000):
+            tel = bus.cycle(Commands(wheel_torque=ctl.torque(tel), arm_left=pose, arm_right=pose))
+        truth = bench.sim.truth
+    finally:
+        bus.nmt_preop()
+    assert truth.sim_time == pytest.approx(10.005, abs=1e-6)
+    assert not truth.fallen and not ctl.fallen
+    assert abs(truth.pitch - ctl.reference_pitch(tel)) < 0.05 and abs(truth.base_x - x0) < 0.05
+
+
+def test_missing_simulator_is_a_fault_not_a_hang():
+    with AgentBus(new_config()) as bus:
+        runner = EpisodeRunner(bus)
+        t0 = time.monotonic()
+        r = run(runner, "bracing", (0.5,))
+    assert r.status == "fault_simulator" and "no heartbeat" in r.detail
+    assert r.cost_terms == {} and r.total_cost is None and r.fault_counts["bus_faults"] == 1
+    assert time.monotonic() - t0 < 3.0
+
+
+@pytest.mark.parametrize("fault", ["node_gone", "emcy"])
+def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
+    config = new_config()
+    bench = SimulatedBench(config)
+    try:
+        with AgentBus(config, timing=BusTiming(deadline_s=0.1)) as bus:
+            bus.wait_for_nodes()
+            runner = EpisodeRunner(bus)
+
+            def inject():
+                while bench.sim.sim_time < 0.5:
+                    time.sleep(0.001)
+                if fault == "node_gone":
+                    bench.nodes["imu"].close()
+                else:
+                    bench.nodes["torso"].emcy.send(0x5000, 0x01)  # device hardware fault
+            t = threading.Thread(target=inject)
+            t.start()
+            r = run(runner, "lifting", SENSIBLE_LIFT)
+            t.join()
+    finally:
+        bench.close()
+    expected = {"node_gone": ("fault_pdo_timeout", "pdo_timeouts"), "emcy": ("fault_emcy", "emcy_faults")}
+    status, counter = expected[fault]
+    assert r.status == status and r.fault_counts[counter] == 1
+    assert r.cost_terms == {} and r.total_cost is None
+    assert 0.5 <= r.duration_s < 1.0 and r.telemetry["n_cycles"] == pytest.approx(r.duration_s / 0.005)
