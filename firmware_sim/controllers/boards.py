@@ -27,8 +27,6 @@ VELOCITY_LIMIT_RANGE = (0.01, 30.0)
 """rad/s."""
 OVERCURRENT_TIME_RANGE = (0.001, 1.0)
 """s."""
-WHEEL_TORQUE_RANGE = (-20.0, 20.0)
-"""N m accepted as a command (the motor delivers at most its current limit)."""
 
 BOARDS: dict[str, tuple[str, ...]] = {
     "wheels": ("wheel_left", "wheel_right"),
@@ -46,8 +44,8 @@ def _finite(name: str, value: float) -> float:
 
 
 def _in_range(name: str, value: float, low: float, high: float) -> float:
-    value = _finite(name, value)
-    if not low <= value <= high:
+    value = float(value)
+    if not low <= value <= high:  # also refuses NaN
         raise ConfigRangeError(name, value, low, high)
     return value
 
@@ -145,9 +143,10 @@ class WheelController(MotorController):
         super().__init__("wheels", firmware)
 
     def set_torque(self, left: float, right: float) -> None:
-        """Joint-side torque commands (N m), positive drives forward."""
-        self._fw.set_wheel_torque(_in_range("wheel_left.torque", left, *WHEEL_TORQUE_RANGE),
-                                  _in_range("wheel_right.torque", right, *WHEEL_TORQUE_RANGE))
+        """Joint-side torque commands (N m), positive drives forward. A cyclic command: the
+        driver delivers at most its current limit (status: current limiting); only
+        non-finite values are refused."""
+        self._fw.set_wheel_torque(_finite("wheel_left.torque", left), _finite("wheel_right.torque", right))
 
     @property
     def balance_free(self) -> bool:

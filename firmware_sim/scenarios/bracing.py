@@ -6,8 +6,13 @@
 - At ``impact_time`` (0.25 s after reset) or on :meth:`trigger_impact`, whichever comes first,
   the bench places the pendulum so that its bob, at the bottom of its swing, touches the
   torso's back at 0.50 m height, and launches it from ``launch_angle`` behind with the speed
-  that gives |p| = m v exactly at the bottom. The bob moves the robot forward; no wheel
-  torque within the motors' limits recovers it, so it falls forward onto its arms.
+  that gives |p| = m v exactly at the bottom.
+- Wheel chocks (5 cm blocks 3 mm in front of both wheels, pendulum.xml) keep the robot from
+  rolling forward out of the fall: with free wheels a balance controller that lets the robot
+  roll away can catch a 14 N s strike (the wheeled pendulum's capture region is large); with
+  the chocks only the wheels' reaction torque can pitch the body back, which is far too
+  little, so the robot falls forward onto its arms whatever the wheels do (checked with LQR
+  gains over a grid of weights, up to the 10 A wheel current limit).
 - 0.15 s after the launch the bench catches the pendulum (its collisions are switched off),
   so it strikes once.
 """

@@ -47,7 +47,7 @@ class Lifting(Scenario):
             eq = spec.add_equality(name=name, type=mujoco.mjtEq.mjEQ_WELD,
                                    objtype=mujoco.mjtObj.mjOBJ_BODY, name1=hand, name2="bottle/shell")
             eq.solref = [0.005, 1.0]
-            eq.active = False  # switched on by initialize_episode, once the poses are set
+            eq.active = False  # switched on in prepare(), once the relative poses are set
         return spec
 
     def prepare(self, physics: Physics) -> None:
@@ -57,9 +57,11 @@ class Lifting(Scenario):
         self._bottle_q = int(m.jnt_qposadr[jid])
         self._hands = [physics.site_id("hand_left"), physics.site_id("hand_right")]
         self._eqs = np.array([physics.equality_id(name) for name, _ in GRASPS])
-        self.initial_qpos = balanced_qpos(physics, self.pose, payload=(self._bottle,),
-                                          place_payload=self._place_bottle)
+        place = dict(payload=(self._bottle,), place_payload=self._place_bottle)
+        balanced_qpos(physics, self.pose, **place)       # grasps off: find the pose
         self._set_grasp_poses(physics)
+        m.eq_active0[self._eqs] = True                    # grasps on: let the wheels carry
+        self.initial_qpos = balanced_qpos(physics, self.pose, **place)  # the bottle too
         self._dropped = False
 
     def _set_grasp_poses(self, physics: Physics) -> None:
