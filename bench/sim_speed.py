@@ -19,14 +19,13 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import canopen  # noqa: E402
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
 from firmware_sim.simulator import Simulator  # noqa: E402
 from protocol.can import cobid  # noqa: E402
 from protocol.can.bench import BENCH, object_dictionary  # noqa: E402
-from protocol.can.busconfig import BusConfig, open_bus  # noqa: E402
+from protocol.can.busconfig import BusConfig, open_network  # noqa: E402
 from protocol.can.pdo import cyclic_pdos  # noqa: E402
 
 
@@ -43,7 +42,7 @@ def physics_rtf(scenario: str, seconds: float = 4.0) -> float:
 def can_cycles_per_second(config: BusConfig, cycles: int) -> tuple[float, float, float]:
     """(cycles/s, p50 ms, p99 ms) of lock-step cycles over ``config``."""
     bench = SimulatedBench(config)
-    net = canopen.Network(open_bus(config)).connect()
+    net = open_network(config)
     try:
         nodes = [net.add_node(d.node_id, object_dictionary(d)) for d in BENCH]
         tpdos = [p.cob_id for p in cyclic_pdos() if p.direction == "tpdo"]

@@ -12,14 +12,13 @@ import threading
 import time
 from dataclasses import dataclass
 
-import canopen
 
 from firmware_sim.nodes.base import SlaveNode
 from firmware_sim.nodes.devices import APPS
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
 from protocol.can.bench import BENCH, Device
-from protocol.can.busconfig import BusConfig, open_bus
+from protocol.can.busconfig import BusConfig, open_network
 from protocol.can.objects import EmcyCode, Index
 
 log = logging.getLogger(__name__)
@@ -53,7 +52,7 @@ class SimulatedBench:
         self.stats = BenchStats()
         self.sim = Simulator(control_period, substeps)
         self.sim.reset("idle", seed)
-        self.network = canopen.Network(open_bus(bus_config)).connect()
+        self.network = open_network(bus_config)
         self.nodes: dict[str, SlaveNode] = {}
         for d in devices:
             self.nodes[d.name] = SlaveNode(d, APPS[d.name](self, d), own_sync=False)

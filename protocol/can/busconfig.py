@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from urllib.parse import urlparse
 
 import can
+import canopen
 
 DEFAULT_BITRATE = 1_000_000
 
@@ -88,3 +89,15 @@ def resolve_bus_config(interface: str | None = None, channel: str | None = None,
 def open_bus(config: BusConfig) -> can.BusABC:
     """Open the python-can bus described by ``config`` (caller shuts it down)."""
     return can.Bus(**config.kwargs())
+
+
+NOTIFIER_CYCLE_S = 0.05
+"""How long the notifier blocks in ``recv``: bounds how long ``disconnect()`` takes
+(canopen's default of 1 s made every shutdown over the hub last a second)."""
+
+
+def open_network(config: BusConfig) -> canopen.Network:
+    """A connected canopen ``Network`` on a new bus (``disconnect()`` closes both)."""
+    network = canopen.Network(open_bus(config))
+    network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+    return network.connect()

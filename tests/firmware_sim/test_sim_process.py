@@ -7,12 +7,11 @@ import subprocess
 import sys
 import time
 
-import canopen
 import pytest
 
 from ersac_hil.canbus import LoopbackHub
 from protocol.can.bench import BENCH, TESTBENCH, object_dictionary
-from protocol.can.busconfig import open_bus
+from protocol.can.busconfig import open_network
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -20,7 +19,7 @@ pytestmark = pytest.mark.timeout(60)
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_sim_process_serves_the_bench_and_stops_on_signal(sig):
     with LoopbackHub() as hub:
-        net = canopen.Network(open_bus(hub.bus_config)).connect()
+        net = open_network(hub.bus_config)
         booted: set[int] = set()
         for d in BENCH:
             net.subscribe(0x700 + d.node_id, lambda cid, data, ts: booted.add(cid & 0x7F))

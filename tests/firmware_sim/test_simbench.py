@@ -5,7 +5,6 @@ from __future__ import annotations
 import threading
 import time
 
-import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 
@@ -13,7 +12,7 @@ from firmware_sim.nodes.simbench import SimulatedBench
 from protocol.can import cobid
 from protocol.can import objects as o
 from protocol.can.bench import ARM_LEFT, BENCH, TESTBENCH, WHEELS, object_dictionary
-from protocol.can.busconfig import open_bus
+from protocol.can.busconfig import open_network
 from protocol.can.pdo import cyclic_pdos
 from protocol.can.objects import Control, Index, Status
 from protocol.can.sdo import RANGE_ABORTS
@@ -26,7 +25,7 @@ N_TPDO = sum(1 for p in cyclic_pdos() if p.direction == "tpdo")  # per SYNC, who
 @pytest.fixture
 def rig(can_backend):
     bench = SimulatedBench(can_backend)
-    net = canopen.Network(open_bus(can_backend)).connect()
+    net = open_network(can_backend)
     nodes = {d.name: net.add_node(d.node_id, object_dictionary(d)) for d in BENCH}
     yield bench, net, nodes
     net.disconnect()

@@ -8,18 +8,17 @@ the same tests run against them unchanged.
 """
 from __future__ import annotations
 
-import canopen
 import pytest
 
 from firmware_sim.nodes import SlaveNode
 from protocol.can.bench import BENCH, object_dictionary
-from protocol.can.busconfig import open_bus
+from protocol.can.busconfig import open_network
 
 
 class ReferenceBench:
     def __init__(self, bus_config):
         self.devices = BENCH
-        self.network = canopen.Network(open_bus(bus_config)).connect()
+        self.network = open_network(bus_config)
         self.nodes = [SlaveNode(d) for d in BENCH]
         for node in self.nodes:
             node.connect(self.network)
@@ -50,7 +49,7 @@ class Master:
     """The test's side of the bus: a canopen network with a RemoteNode per device."""
 
     def __init__(self, bus_config, devices):
-        self.network = canopen.Network(open_bus(bus_config)).connect()
+        self.network = open_network(bus_config)
         self.nodes = {d.name: self.network.add_node(d.node_id, object_dictionary(d)) for d in devices}
         self.devices = {d.name: d for d in devices}
 
