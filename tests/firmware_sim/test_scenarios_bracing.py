@@ -1,0 +1,131 @@
+"""Bracing: the strike (momentum from the seed), the fall whatever the wheels do, and the
+stiffness trade-off: stiff arms break the elbow cable for some seeds, soft arms collapse and
+give the body a larger angular-acceleration integral."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from firmware_sim.plant.linearize import balance_model
+from firmware_sim.scenarios import Bracing
+from firmware_sim.simulator import FailureKind, Simulator
+
+ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
+SEEDS = range(8)
+
+
+@pytest.fixture(scope="module")
+def sim() -> Simulator:
+    return Simulator()
+
+
+@pytest.fixture(scope="module")
+def gains(sim) -> np.ndarray:
+    sim.reset("bracing", 0)
+    return balance_model(sim.physics, sim.control_period).lqr_gain(np.diag([0.5, 200.0, 0.5, 5.0]), 1.0)
+
+
+def episode(sim: Simulator, gains: np.ndarray, seed: int, stiffness: float | None = None,
+            balance_after_strike: bool = False, seconds: float = 2.0) -> dict:
+    """One bracing episode: LQR balance until the strike (then zero wheel torque unless
+    ``balance_after_strike``), arms at ``stiffness`` with damping 0.02 s * K."""
+    sim.reset("bracing", seed)
+    if stiffness is not None:
+        for axis in ARM:
+            sim.set_impedance(axis, stiffness, 0.02 * stiffness)
+    pitch0, phi0 = sim.imu().pitch, sim.axis("wheel_left").position
+    hands = np.array([sim.physics.geom_id(g) for g in ("hand_left", "hand_right")])
+    acc_sq, hands_down, events = 0.0, False, []
+    for _ in range(round(seconds / sim.control_period)):
+        u = 0.0
+        if balance_after_strike or math.isnan(sim.truth.impact_time):
+            imu, wl, wr = sim.imu(), sim.axis("wheel_left"), sim.axis("wheel_right")
+            x = np.array([0.5 * (wl.position + wr.position) - phi0, imu.pitch - pitch0,
+                          0.5 * (wl.velocity + wr.velocity), imu.pitch_rate])
+            u = float(np.clip(-(gains @ x)[0], -7.85, 7.85))
+        sim.set_wheel_torque(u, u)
+        events += sim.step()
+        acc_sq += sim.imu().pitch_acc ** 2 * sim.control_period    # what the agent integrates
+        hands_down = hands_down or sim.physics.contacts_with_floor(hands)
+    t = sim.truth
+    return dict(momentum=t.impact_momentum, damaged=t.damaged, acc_sq=acc_sq, hands_down=hands_down,
+                peak_tension=max(t.peak_cable_tension_left, t.peak_cable_tension_right),
+                events=events, fallen=t.fallen)
+
+
+def test_momentum_is_drawn_from_the_seed():
+    sim = Simulator()
+    drawn = []
+    for seed in range(60):
+        sim.reset("bracing", seed)
+        drawn.append(sim.truth.impact_momentum)
+    sim.reset("bracing", 7)
+    assert sim.truth.impact_momentum == drawn[7]
+    lo, hi = Bracing.momentum_clip
+    assert all(lo <= p <= hi for p in drawn)
+    assert np.mean(drawn) == pytest.approx(14.0, abs=1.0)
+    assert np.std(drawn) == pytest.approx(2.0, rel=0.35)
+    assert len(set(drawn)) == len(drawn)
+
+
+def test_strike_at_quarter_second_or_on_trigger(sim, gains):
+    sim.reset("bracing", 0)
+    for _ in range(50):
+        sim.step()
+    assert sim.sim_time == pytest.approx(0.25) and math.isnan(sim.truth.impact_time)
+    sim.step()                                    # launched at the start of this period
+    assert sim.truth.impact_time == pytest.approx(0.25)
+    sim.reset("bracing", 0)
+    sim.step()
+    sim.trigger_impact()
+    assert sim.truth.impact_time == pytest.approx(0.005)
+    for _ in range(10):
+        sim.step()
+    assert sim.truth.pitch_rate > 1.0            # the bob knocked the body forward
+
+
+@pytest.mark.parametrize("balance_after_strike", [False, True])
+def test_the_robot_falls_onto_its_arms_whatever_the_wheels_do(sim, gains, balance_after_strike):
+    for seed in (2, 5):                           # the two smallest momenta of SEEDS
+        r = episode(sim, gains, seed, balance_after_strike=balance_after_strike, seconds=1.5)
+        assert r["hands_down"], r
+
+
+def test_stiffness_trade_off_over_seeds(sim, gains):
+    soft = [episode(sim, gains, s, stiffness=5.0) for s in SEEDS]
+    stiff = [episode(sim, gains, s, stiffness=250.0) for s in SEEDS]
+    print("\nseed momentum | soft: acc_sq T_peak damaged | stiff: acc_sq T_peak damaged")
+    for s, a, b in zip(SEEDS, soft, stiff):
+        print(f"{s} {a['momentum']:.2f} | {a['acc_sq']:.0f} {a['peak_tension']:.0f} {a['damaged']}"
+              f" | {b['acc_sq']:.0f} {b['peak_tension']:.0f} {b['damaged']}")
+    damaged = [r for r in stiff if r["damaged"]]
+    intact = [r for r in stiff if not r["damaged"]]
+    assert not any(r["damaged"] for r in soft)            # soft arms never break the cable
+    assert 1 <= len(damaged) <= len(SEEDS) - 1            # stiff arms break it for some seeds
+    assert all(a["peak_tension"] < b["peak_tension"] for a, b in zip(soft, stiff))
+    # damage goes with the larger strikes
+    assert np.mean([r["momentum"] for r in damaged]) > np.mean([r["momentum"] for r in intact])
+    # soft arms collapse: the body hits the floor harder than on intact stiff arms
+    assert all(r["fallen"] for r in soft)
+    assert np.mean([r["acc_sq"] for r in soft]) > 1.3 * np.mean([r["acc_sq"] for r in intact])
+    # each break is reported once, by the arm board of its side
+    for r in damaged:
+        breaks = [e for e in r["events"] if e.kind == FailureKind.CABLE_BROKEN]
+        assert 1 <= len(breaks) <= 2
+        assert len({e.axis for e in breaks}) == len(breaks)
+        assert all(e.board == f"arm_{e.axis.split('_')[1]}" for e in breaks)
+
+
+def test_a_broken_cable_leaves_the_elbow_limp(sim, gains):
+    r = episode(sim, gains, 0, stiffness=400.0, seconds=1.0)
+    assert r["damaged"]
+    status = sim.status
+    side = "left" if status.cable_broken_left else "right"
+    assert sim.controller(f"arm_{side}").status(f"elbow_{side}").disconnected
+    assert abs(sim.axis(f"elbow_{side}").current) < 1e-9
+    assert getattr(sim.truth, f"cable_tension_{side}") == 0.0
+    sim.set_impedance(f"elbow_{side}", 100.0, 1.0)      # reconfiguring does not repair it
+    sim.step()
+    assert abs(sim.axis(f"elbow_{side}").current) < 1e-9
