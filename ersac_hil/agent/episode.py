@@ -59,6 +59,7 @@ class EpisodeConfig:
         lifting_payload_kg: the bottle, for the balance reference and the LQR model.
         goal_tolerance_m, rest_speed_m_s, rest_s: the lifting end condition.
         go_timeout_s: how long to wait for the go signal without a test bench.
+        testbench_wait_s: how long to listen for the test bench's heartbeat when not heard yet.
         node_timeout_s: how long the cyclic nodes may take to show up.
     """
     bracing: BracingPolicy = BracingPolicy()
@@ -71,6 +72,7 @@ class EpisodeConfig:
     rest_speed_m_s: float = 0.05
     rest_s: float = 0.25
     go_timeout_s: float = 600.0
+    testbench_wait_s: float = 0.25
     node_timeout_s: float = 1.0
     robot: RobotParameters = UBOT
 
@@ -146,7 +148,7 @@ class EpisodeRunner:
         try:
             bus.wait_for_nodes(CYCLIC, timeout_s=self.config.node_timeout_s)
             bus.nmt_preop()
-            testbench = bus.present(TESTBENCH)
+            testbench = self._testbench_present()
             if testbench:
                 configure.reset_scenario(bus, SCENARIOS[request.task], request.seed)
             elif not self._wait_go():
@@ -173,6 +175,17 @@ class EpisodeRunner:
                 pass
         run.emcy = bus.emcy_events(emcy_mark)
         return self._result(plan, run, wall0)
+
+    def _testbench_present(self) -> bool:
+        """Heard the test bench's heartbeat recently (waiting one heartbeat period if not yet:
+        the nodes' heartbeat timers are independent, right after start one may still be due)."""
+        if self.bus.present(TESTBENCH):
+            return True
+        try:
+            self.bus.wait_for_nodes((TESTBENCH,), timeout_s=self.config.testbench_wait_s)
+        except AgentFault:
+            return False
+        return True
 
     def _wait_go(self) -> bool:
         return bool(self.go is not None and self.go(self.config.go_timeout_s))

@@ -1,0 +1,63 @@
+"""``ersac-hil agent``: the robot-side agent process (picked up by ``ersac_hil.cli``)."""
+from __future__ import annotations
+
+import argparse
+import logging
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("agent", help="robot-side agent: Zenoh episode/run -> CANopen bench")
+    p.add_argument("--robot", required=True, help="robot name (key chunk), e.g. ubot1")
+    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")
+    p.add_argument("--bus-channel", help="vcan0 / can0 / ws://127.0.0.1:PORT/ ...")
+    p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--zenoh", action="append", required=True, metavar="ENDPOINT",
+                   help="tcp/127.0.0.1:PORT to connect to (repeatable)")
+    p.add_argument("--mode", choices=("client", "peer"), default="client",
+                   help="zenoh session mode (default client, through a router)")
+    p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
+    p.add_argument("--period-ms", type=float, default=5.0, help="control period (default 5 ms)")
+    p.add_argument("--deadline-ms", type=float, default=100.0,
+                   help="how long a SYNC cycle waits for its TPDOs (default 100 ms)")
+    p.add_argument("--heartbeat-timeout-ms", type=float, default=450.0,
+                   help="a node silent this long is lost (default 450 ms)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ersac_hil.agent.bus import BusTiming
+    from ersac_hil.agent.service import AgentConfig, AgentService
+    from ersac_hil.lifecycle import serve
+    from protocol.can.busconfig import BusConfigError, resolve_bus_config
+
+    try:
+        bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
+        timing = BusTiming(period_s=args.period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
+                           heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
+                           realtime=args.realtime)
+        config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
+                             zenoh_connect=tuple(args.zenoh), zenoh_mode=args.mode, timing=timing)
+        service = AgentService(config)
+    except (BusConfigError, ValueError) as exc:
+        print(f"ersac-hil agent: {exc}")
+        return 2
+
+    class _Announcing:
+        def start(self) -> None:
+            service.start()
+            print(f"agent ready: {service.keys.root} on {bus.describe()}", flush=True)
+
+        def stop(self) -> None:
+            service.stop()
+            print(f"agent stopped after {service.episodes} episodes", flush=True)
+
+    from ersac_hil.agent.errors import AgentFault
+    from ersac_hil.zenoh_session import ZenohSessionError
+    try:
+        return serve(_Announcing())
+    except (ZenohSessionError, AgentFault) as exc:
+        print(f"ersac-hil agent: {exc}", flush=True)
+        return 1

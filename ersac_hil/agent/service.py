@@ -1,0 +1,201 @@
+"""The agent process: a Zenoh front end on the episode runner.
+
+* liveliness token ``<prefix>/<robot>/agent/alive`` while the agent is up;
+* queryable ``<prefix>/<robot>/episode/run``: ``EpisodeRequest`` -> ``EpisodeResult``; every
+  refusal is a ``reply_err`` with an ``ErrorReply`` (invalid payload, unknown task, wrong
+  dimension, NaN, out of bounds -> ``invalid_request``; a spline outside the joint limits ->
+  ``invalid_request``; another episode running -> ``busy``; a controller refusing the
+  configuration -> ``fault``; a bug -> ``internal``). The agent stays ready for the next one.
+* publication ``<prefix>/<robot>/episode/done``: ``EpisodeDone`` after every episode it ran;
+* subscriber ``<prefix>/<robot>/agent/go``: the go signal of a person who reset a robot without
+  a test bench (any put).
+
+The queryable callback only validates and hands the query to one worker thread (the episode
+runs there and replies when done), so a second request while an episode runs is refused at
+once with ``busy`` instead of queueing behind it. ``stop()`` aborts a running episode, replies
+to it, then withdraws the token and closes the session and the bus.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import zenoh
+
+from ersac_hil.agent.bus import AgentBus, BusTiming
+from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
+from ersac_hil.agent.errors import RequestRefused
+from ersac_hil.zenoh_session import make_config, open_session
+from protocol.can.busconfig import BusConfig
+from protocol.zenoh import (EpisodeDone, EpisodeRequest, ErrorReply, InvalidField, KeySpace,
+                            PayloadError)
+
+log = logging.getLogger(__name__)
+
+GO_SUFFIX = "agent/go"
+"""Key (under ``<prefix>/<robot>``) of the go signal; not yet in ``protocol.zenoh.KeySpace``."""
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Everything ``ersac-hil agent`` is started with.
+
+    Attributes:
+        robot, prefix: the key space (``KeySpace(robot, prefix)``).
+        bus: the CAN bus. timing: SYNC period, deadline, heartbeat timeout, real-time mode.
+        zenoh_mode: ``client`` (through a router) or ``peer``; zenoh_connect: endpoints
+            ``tcp/127.0.0.1:PORT``; zenoh_listen: peer mode only.
+        episode: what episodes do (policies, LQR weights, cost weights).
+    """
+    robot: str
+    bus: BusConfig
+    zenoh_connect: tuple[str, ...]
+    zenoh_mode: str = "client"
+    zenoh_listen: tuple[str, ...] = ()
+    prefix: str = "ersac"
+    timing: BusTiming = BusTiming()
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+
+    @property
+    def keys(self) -> KeySpace:
+        return KeySpace(self.robot, self.prefix)
+
+
+class AgentService:
+    """``start()`` / ``stop()`` (a ``ersac_hil.lifecycle.Service``)."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        self.config = config
+        self.keys = config.keys  # validates robot and prefix
+        self.bus: AgentBus | None = None
+        self.runner: EpisodeRunner | None = None
+        self.session: zenoh.Session | None = None
+        self._entities: list = []
+        self._publisher = None
+        self._busy = threading.Lock()
+        self._work: queue.Queue = queue.Queue()
+        self._worker: threading.Thread | None = None
+        self._go = threading.Event()
+        self.episodes = 0
+        self.refused = 0
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def start(self) -> None:
+        cfg = self.config
+        self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
+        self.runner = EpisodeRunner(self.bus, cfg.episode, go=self._wait_go)
+        for task in ("bracing", "lifting"):
+            self.runner.design(task)  # LQR gains once, before the first request
+        zconf = make_config(cfg.zenoh_mode, connect=cfg.zenoh_connect, listen=cfg.zenoh_listen)
+        self.session = open_session(zconf)
+        self._worker = threading.Thread(target=self._work_loop, name="agent-episodes", daemon=True)
+        self._worker.start()
+        s = self.session
+        self._publisher = s.declare_publisher(self.keys.episode_done)
+        self._entities = [
+            self._publisher,
+            s.declare_subscriber(f"{self.keys.root}/{GO_SUFFIX}", lambda sample: self._go.set()),
+            s.declare_queryable(self.keys.episode_run, self._on_query),
+            s.liveliness().declare_token(self.keys.agent_alive),
+        ]
+        log.info("agent %s ready: bus %s, zenoh %s %s", self.keys.root, cfg.bus.describe(),
+                 cfg.zenoh_mode, ",".join(cfg.zenoh_connect + cfg.zenoh_listen))
+
+    def stop(self) -> None:
+        if self.runner is not None:
+            self.runner.stop_requested.set()
+        self._go.set()
+        if self._worker is not None:
+            self._work.put(None)
+            self._worker.join(timeout=10.0)
+            self._worker = None
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception as exc:  # session may be half closed already
+                log.debug("undeclare: %s", exc)
+        self._entities = []
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+
+    def __enter__(self) -> "AgentService":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- queries ---------------------------------------------------------------------------
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            request = EpisodeRequest.from_json(query.payload if query.payload is not None else b"")
+        except PayloadError as exc:
+            return self._refuse(query, ErrorReply.from_exception(exc, "invalid_request"))
+        except Exception as exc:  # never leave a query without a reply
+            return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
+        if not self._busy.acquire(blocking=False):
+            return self._refuse(query, ErrorReply("busy", "another episode is running on this agent"))
+        try:
+            plan = self.runner.plan(request)  # type: ignore[union-attr]
+        except (RequestRefused, InvalidField) as exc:
+            self._busy.release()
+            return self._refuse(query, ErrorReply.from_exception(exc, getattr(exc, "code", "invalid_request")))
+        except Exception as exc:
+            self._busy.release()
+            return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
+        self._work.put((query, plan))
+
+    def _refuse(self, query: zenoh.Query, error: ErrorReply) -> None:
+        self.refused += 1
+        log.info("refused %s: %s", error.code, error.reason)
+        try:
+            query.reply_err(error.to_json())
+        finally:
+            query.drop()
+
+    def _work_loop(self) -> None:
+        while True:
+            item = self._work.get()
+            if item is None:
+                return
+            query, plan = item
+            try:
+                self._serve(query, plan)
+            finally:
+                self._busy.release()
+
+    def _serve(self, query: zenoh.Query, plan) -> None:
+        try:
+            result = self.runner.run(plan)  # type: ignore[union-attr]
+        except RequestRefused as exc:
+            return self._refuse(query, ErrorReply.from_exception(exc, exc.code))
+        except Exception as exc:
+            log.exception("episode %s failed", plan.request.episode_id)
+            return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
+        self.episodes += 1
+        log.info("episode %s %s: %s cost %s in %.2f s", plan.request.episode_id, plan.request.task,
+                 result.status, result.total_cost, result.wall_s)
+        try:
+            query.reply(self.keys.episode_run, result.to_json())
+        finally:
+            query.drop()
+        try:
+            done = EpisodeDone(self.keys.robot, time.time(), plan.request, result)
+            self._publisher.put(done.to_json())  # type: ignore[union-attr]
+        except Exception as exc:  # publication is best effort; the reply went out
+            log.warning("episode/done not published: %s", exc)
+
+    def _wait_go(self, timeout_s: float) -> bool:
+        """The runner's go signal (no test bench): wait for a put on ``agent/go``."""
+        self._go.clear()
+        log.warning("no test bench: reset the robot, then put anything on %s/%s",
+                    self.keys.root, GO_SUFFIX)
+        ok = self._go.wait(timeout_s)
+        return ok and not (self.runner is not None and self.runner.stop_requested.is_set())

@@ -1,0 +1,198 @@
+"""The agent process end to end: real agent (``ersac-hil agent``), real simulator process
+(``python -m firmware_sim``), real Zenoh router and client, loopback CAN hub."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from ersac_hil.agent.service import AgentConfig, AgentService
+from ersac_hil.canbus import LoopbackHub
+from ersac_hil.zenoh_session import EmbeddedRouter
+from protocol.zenoh import EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, KeySpace
+
+pytestmark = pytest.mark.timeout(120)
+ROBOT = "ubot-test"
+KS = KeySpace(ROBOT)
+SENSIBLE_LIFT = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
+
+
+def start_sim(hub: LoopbackHub) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-m", "firmware_sim", "--bus-interface", "remote",
+                             "--bus-channel", hub.url], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    assert line.startswith("simulator:"), line + proc.stderr.read()
+    return proc
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    proc.communicate(timeout=10)
+
+
+class Stack:
+    def __init__(self):
+        self.hub = LoopbackHub()
+        self.router = EmbeddedRouter().start()
+        self.sim = start_sim(self.hub)
+        self.agent = subprocess.Popen(
+            [sys.executable, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT, "--bus-interface",
+             "remote", "--bus-channel", self.hub.url, "--zenoh", self.router.endpoint],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.agent.stdout.readline()
+        assert line.startswith("agent ready"), line + self.agent.stderr.read()
+        self.session = self.router.open_client()
+        self.done: list[EpisodeDone] = []
+        self.sub = self.session.declare_subscriber(
+            KS.episode_done, lambda s: self.done.append(EpisodeDone.from_json(s.payload)))
+
+    def close(self):
+        self.sub.undeclare()
+        self.session.close()
+        stop(self.agent)
+        stop(self.sim)
+        self.router.close()
+        self.hub.close()
+
+
+@pytest.fixture(scope="module")
+def stack():
+    s = Stack()
+    yield s
+    s.close()
+
+
+def ask(session, payload: bytes, timeout: float = 30.0):
+    """One reply: (EpisodeResult, None) or (None, ErrorReply)."""
+    replies = list(session.get(KS.episode_run, payload=payload, timeout=timeout))
+    assert len(replies) == 1, replies
+    reply = replies[0]
+    if reply.ok is not None:
+        return EpisodeResult.from_json(reply.ok.payload), None
+    return None, ErrorReply.from_json(reply.err.payload.to_bytes())
+
+
+def request(task, theta, seed=0) -> bytes:
+    return EpisodeRequest(f"ep-{uuid.uuid4().hex[:10]}", task, theta, seed).to_json()
+
+
+def test_liveliness_token_is_declared(stack):
+    deadline = time.monotonic() + 5
+    keys = []
+    while not keys and time.monotonic() < deadline:
+        keys = [str(r.ok.key_expr) for r in stack.session.liveliness().get(KS.agent_alive, timeout=1)
+                if r.ok is not None]
+    assert keys == [KS.agent_alive]
+
+
+def test_bracing_cost_depends_on_stiffness_and_stiff_arms_get_damaged(stack):
+    results = {theta: [ask(stack.session, request("bracing", (theta,), seed))[0] for seed in (0, 1, 2)]
+               for theta in (0.05, 0.95)}
+    for rs in results.values():
+        assert all(r is not None and r.status == "ok" for r in rs), rs
+    soft = np.array([r.total_cost for r in results[0.05]])
+    stiff = np.array([r.total_cost for r in results[0.95]])
+    assert abs(stiff.mean() - soft.mean()) > 0.1 * max(abs(stiff.mean()), abs(soft.mean()))
+    assert any(r.failed("hardware_damage") for r in results[0.95])
+    assert not any(r.failed("hardware_damage") for r in results[0.05])
+    # every finished episode is published with its request (just after its reply)
+    ids = {r.episode_id for rs in results.values() for r in rs}
+    deadline = time.monotonic() + 3
+    while not ids <= {d.result.episode_id for d in stack.done} and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert ids <= {d.result.episode_id for d in stack.done}
+    assert all(d.robot == ROBOT and d.request.episode_id == d.result.episode_id for d in stack.done)
+
+
+def test_lifting_with_a_sensible_spline_lifts_the_bottle(stack):
+    result, error = ask(stack.session, request("lifting", SENSIBLE_LIFT, seed=3))
+    assert error is None and result.status == "ok", (error, result)
+    assert not result.failed("bottle_dropped")
+    assert result.telemetry["final_bottle_height_m"] > 1.1
+    assert result.telemetry["bench_bottle_height_m"] > 1.1
+
+
+def _raw(obj: dict) -> bytes:
+    return json.dumps({"v": 1, "type": "episode_request", **obj}).encode()
+
+
+INVALID = [
+    (_raw({"episode_id": "e1", "task": "juggling", "theta": [0.5], "seed": 1}), "unknown task"),
+    (_raw({"episode_id": "e2", "task": "bracing", "theta": [0.5, 0.5], "seed": 1}), "expected 1 values"),
+    (b'{"v": 1, "type": "episode_request", "episode_id": "e3", "task": "bracing", "theta": [NaN], "seed": 1}',
+     "NaN"),
+    (_raw({"episode_id": "e4", "task": "bracing", "theta": [1.5], "seed": 1}), "outside [0.0, 1.0]"),
+    (_raw({"episode_id": "e5", "task": "lifting", "theta": [3.0, 0.2, 0.0, 2.4, 0.2, 0.2, 0.2], "seed": 1}),
+     "velocity limit"),
+    (_raw({"episode_id": "e6", "task": "lifting", "theta": [-1.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], "seed": 1}),
+     "outside its range"),
+    (b"not json", "not valid JSON"),
+    (b"", "not valid JSON"),
+]
+
+
+def test_invalid_requests_are_refused_and_the_agent_stays_ready(stack):
+    for payload, needle in INVALID:
+        result, error = ask(stack.session, payload)
+        assert result is None and error.code == "invalid_request", (payload, result)
+        assert needle in error.reason, (payload, error.reason)
+    result, error = ask(stack.session, request("bracing", (0.5,), seed=4))
+    assert error is None and result.status == "ok"
+
+
+def test_second_request_while_busy_is_refused(stack):
+    first: list = []
+    t = threading.Thread(target=lambda: first.append(ask(stack.session, request("lifting", SENSIBLE_LIFT))))
+    t.start()
+    time.sleep(0.3)  # the lifting episode takes about a second of wall time
+    result, error = ask(stack.session, request("bracing", (0.5,)))
+    t.join()
+    assert result is None and error.code == "busy"
+    assert first[0][0] is not None and first[0][0].status == "ok"
+
+
+def test_agent_process_stops_cleanly_on_sigterm(stack):
+    stack.agent.send_signal(signal.SIGTERM)
+    out, err = stack.agent.communicate(timeout=10)
+    assert stack.agent.returncode == 143, err
+    assert "agent stopped after" in out and "Traceback" not in err
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline:
+        if not [r for r in stack.session.liveliness().get(KS.agent_alive, timeout=1) if r.ok is not None]:
+            break
+        time.sleep(0.05)
+    else:
+        pytest.fail("liveliness token still there after the agent stopped")
+
+
+def test_killing_the_simulator_mid_episode_is_a_fault_within_a_second():
+    with LoopbackHub() as hub, EmbeddedRouter() as router:
+        sim = start_sim(hub)
+        config = AgentConfig(robot=ROBOT, bus=hub.bus_config, zenoh_connect=(router.endpoint,))
+        try:
+            with AgentService(config), router.open_client() as session:
+                killed: list[float] = []
+
+                def kill():
+                    time.sleep(0.4)
+                    sim.kill()
+                    killed.append(time.monotonic())
+                threading.Thread(target=kill).start()
+                result, error = ask(session, request("lifting", SENSIBLE_LIFT))
+                replied = time.monotonic()
+                assert error is None, error
+                assert result.status in ("fault_pdo_timeout", "fault_heartbeat"), result
+                assert result.cost_terms == {} and result.total_cost is None
+                assert replied - killed[0] < 1.0
+                assert sum(result.fault_counts.values()) >= 1
+        finally:
+            stop(sim)
