@@ -63,9 +63,14 @@ class Firmware:
         self.dt = physics.timestep
         idx = physics.axes
         self._act = idx.actuator
+        a0 = int(idx.actuator[0])
+        contiguous = np.array_equal(idx.actuator, np.arange(a0, a0 + 7))
+        self._act_view = slice(a0, a0 + 7) if contiguous else idx.actuator
+        self._abs_force = np.zeros(7)
         self._dof = idx.dof
         self._qpos = idx.qpos
-        self._ff_ctrl = idx.ctrl[WHEELS]
+        self._ff = [int(c) for c in idx.ctrl[WHEELS]]
+        self._wheel_scale = [0.0, 0.0]
         self._pos_ctrl = idx.ctrl[IMPEDANCE]
         self._vel_ctrl = idx.ctrl[IMPEDANCE] + 1
         self._imp_act = idx.actuator[IMPEDANCE]
@@ -104,6 +109,7 @@ class Firmware:
         self.spline_active = np.zeros(7, dtype=bool)
         self.spline_done = np.zeros(7, dtype=bool)
         self._sat_count = np.zeros(7, dtype=np.int64)
+        self._counting = False
         self._sat_ticks = np.ones(7, dtype=np.int64)
         self._sat_threshold = np.zeros(7)
         self._splines: list[_RunningSpline] = []
@@ -128,20 +134,25 @@ class Firmware:
         m.actuator_forcerange[self._act, 1] = limit
         self._sat_threshold = limit * (1.0 - 1e-9)
         self._sat_ticks = np.maximum(1, np.round(self.overcurrent_time / self.dt)).astype(np.int64)
+        self._min_sat_ticks = int(self._sat_ticks.min())
         d.ctrl[self._pos_ctrl] = self._gear[IMPEDANCE] * self.q_ref[IMPEDANCE]
         d.ctrl[self._vel_ctrl] = self._gear[IMPEDANCE] * self.qd_ref[IMPEDANCE]
         self._write_wheels()
 
     def _write_wheels(self) -> None:
         on = self.active[WHEELS] & (not self.wheels_free)
-        self.physics.data.ctrl[self._ff_ctrl] = np.where(
-            on, self.torque_cmd[WHEELS] / self._gear[WHEELS], 0.0)
+        self._wheel_scale = [1.0 / float(self._gear[i]) if on[i] else 0.0 for i in WHEELS]
+        self.set_wheel_torque(float(self.torque_cmd[0]), float(self.torque_cmd[1]))
 
     # ---- commands (validated by the boards) -----------------------------------------------
     def set_wheel_torque(self, left: float, right: float) -> None:
+        """Joint-side torque commands; the motor torque (ff input) is torque / G, or 0 when
+        the wheel drivers are inactive or free."""
         self.torque_cmd[0] = left
         self.torque_cmd[1] = right
-        self._write_wheels()
+        ctrl = self.physics.data.ctrl
+        ctrl[self._ff[0]] = left * self._wheel_scale[0]
+        ctrl[self._ff[1]] = right * self._wheel_scale[1]
 
     def set_setpoint(self, i: int, q: float) -> None:
         """Fixed setpoint for impedance axis ``i`` (cancels a running spline on that axis)."""
@@ -244,12 +255,18 @@ class Firmware:
         """After a substep: current limiting and over-current timing. Returns the axes whose
         over-current fault latched in this substep."""
         self.tick += 1
-        limiting = np.abs(self.physics.data.actuator_force[self._act]) >= self._sat_threshold
-        self.current_limiting = limiting
+        force = np.abs(self.physics.data.actuator_force[self._act_view], out=self._abs_force)
+        limiting = self.current_limiting = force >= self._sat_threshold
         count = self._sat_count
+        if not limiting.any():
+            if self._counting:
+                count[:] = 0
+                self._counting = False
+            return ()
+        self._counting = True
         count += 1
         count *= limiting
-        if count.max() < self._sat_ticks.min():
+        if count.max() < self._min_sat_ticks:
             return ()
         new = (count >= self._sat_ticks) & ~self.over_current
         if not new.any():

@@ -49,36 +49,39 @@ class ElbowCables:
     def __init__(self, physics: Physics, gear: np.ndarray, spec: CableSpec = CableSpec()) -> None:
         self.spec = spec
         idx = [AXES.index(a) for a in ELBOWS]
-        self._act = physics.axes.actuator[idx]
+        self._act = [int(a) for a in physics.axes.actuator[idx]]
         self._dof = physics.axes.dof[idx]
         self._armature0 = physics.model.dof_armature[self._dof].copy()
         self._physics = physics
-        self._scale = gear[idx] / spec.pulley_radius      # N of tension per N m of motor torque
-        self.tension = np.full(2, spec.pretension)
-        self.peak = self.tension.copy()
-        self.broken = np.zeros(2, dtype=bool)
+        # N of tension per N m of motor torque, per side
+        self._scale = [float(g) / spec.pulley_radius for g in gear[idx]]
+        self.reset()
 
     def reset(self) -> None:
         self._physics.model.dof_armature[self._dof] = self._armature0
-        self.tension[:] = self.spec.pretension
-        self.peak[:] = self.spec.pretension
-        self.broken[:] = False
+        self.tension = np.full(2, self.spec.pretension)
+        self.peak = self.tension.copy()
+        self.broken = np.zeros(2, dtype=bool)
+        self._intact = [True, True]
 
     def update(self, actuator_force: np.ndarray) -> tuple[int, ...]:
-        """After a substep: tension from the applied motor torques (shape (nu_act,)); returns the
-        sides (0/1) that broke in this substep."""
-        t = np.abs(actuator_force[self._act]) * self._scale
-        t += self.spec.pretension
-        t[self.broken] = 0.0
-        self.tension = t
-        np.maximum(self.peak, t, out=self.peak)
-        if t.max() <= self.spec.breaking_tension:
-            return ()
-        snapped = tuple(int(i) for i in np.flatnonzero(t > self.spec.breaking_tension))
-        for i in snapped:
-            self.broken[i] = True
-            # the rotor and gearbox are no longer coupled to the forearm
-            self._physics.model.dof_armature[self._dof[i]] = 0.0
+        """After a substep: tension from the applied motor torques (MuJoCo's actuator_force);
+        returns the sides (0 left, 1 right) that broke in this substep."""
+        spec, snapped = self.spec, ()
+        for side in (0, 1):
+            if not self._intact[side]:
+                continue
+            t = abs(float(actuator_force[self._act[side]])) * self._scale[side] + spec.pretension
+            self.tension[side] = t
+            if t > self.peak[side]:
+                self.peak[side] = t
+            if t > spec.breaking_tension:
+                snapped += (side,)
+                self._intact[side] = False
+                self.broken[side] = True
+                self.tension[side] = 0.0
+                # the rotor and gearbox are no longer coupled to the forearm
+                self._physics.model.dof_armature[self._dof[side]] = 0.0
         return snapped
 
 
@@ -88,7 +91,7 @@ class FallDetector:
     def __init__(self, physics: Physics, pitch_limit: float = 0.8) -> None:
         self.pitch_limit = pitch_limit
         self._physics = physics
-        self._geoms = np.array([physics.geom_id(g) for g in FALL_GEOMS])
+        self._geoms = physics.geom_mask(FALL_GEOMS)
         self.fallen = False
 
     def reset(self) -> None:

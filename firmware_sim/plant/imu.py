@@ -56,12 +56,11 @@ class Imu:
     def __init__(self, physics: Physics, control_period: float, noise: ImuNoise = ImuNoise()) -> None:
         self._physics = physics
         self._period = control_period
-        self._sigma = noise.as_array()
+        self._sigma = noise.as_array().tolist()
         m = physics.model
-        gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
-        acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
-        self._gyro = slice(gyro_adr, gyro_adr + 3)
-        self._acc = slice(acc_adr, acc_adr + 3)
+        self._gyro_y = int(m.sensor_adr[m.sensor("imu_gyro").id]) + 1
+        acc_adr = int(m.sensor_adr[m.sensor("imu_acc").id])
+        self._acc_x, self._acc_z = acc_adr, acc_adr + 2
         self._rng = np.random.default_rng(0)
         self._prev_rate = 0.0
         self.truth = ImuSample(0.0, 0.0, 0.0, 0.0, 0.0)
@@ -70,19 +69,19 @@ class Imu:
     def reset(self, rng: np.random.Generator) -> None:
         """Start of an episode: zero angular-acceleration history, noise stream ``rng``."""
         self._rng = rng
-        self._prev_rate = float(self._physics.data.sensordata[self._gyro][1])
+        self._prev_rate = float(self._physics.data.sensordata[self._gyro_y])
         self.sample()
 
     def sample(self) -> ImuSample:
         """Take the end-of-period reading; updates ``truth`` (noise-free) and ``latest``."""
         d = self._physics.data
-        gyro = d.sensordata[self._gyro]
-        acc = d.sensordata[self._acc]
-        rate = float(gyro[1])
+        sensors = d.sensordata
+        rate = float(sensors[self._gyro_y])
         alpha = (rate - self._prev_rate) / self._period
         self._prev_rate = rate
-        true = np.array([self._physics.body_pitch(), rate, alpha, acc[0], acc[2]])
-        noisy = true + self._sigma * self._rng.standard_normal(5)
-        self.truth = ImuSample(*(float(v) for v in true))
-        self.latest = ImuSample(*(float(v) for v in noisy))
+        true = (self._physics.body_pitch(), rate, alpha,
+                float(sensors[self._acc_x]), float(sensors[self._acc_z]))
+        noise = self._rng.standard_normal(5).tolist()
+        self.truth = ImuSample(*true)
+        self.latest = ImuSample(*(v + s * n for v, s, n in zip(true, self._sigma, noise)))
         return self.latest

@@ -189,13 +189,21 @@ class Physics:
         coms = self.data.subtree_com[list(body_ids)]
         return (masses[:, None] * coms).sum(axis=0) / masses.sum()
 
-    def contacts_with_floor(self, geom_ids: np.ndarray) -> bool:
-        """True when any geom of ``geom_ids`` (shape (k,)) touches the floor now."""
-        n = self.data.ncon
-        if n == 0:
+    def geom_mask(self, names: tuple[str, ...]) -> np.ndarray:
+        """Boolean mask over all geoms, True for ``names``, shape (ngeom,)."""
+        mask = np.zeros(self.model.ngeom, dtype=bool)
+        mask[[self.geom_id(n) for n in names]] = True
+        return mask
+
+    def contacts_with_floor(self, geoms: np.ndarray) -> bool:
+        """True when a geom selected by ``geoms`` touches the floor now. ``geoms`` is a mask
+        from :meth:`geom_mask` (shape (ngeom,)) or an array of geom ids."""
+        if self.data.ncon == 0:
             return False
-        g1 = self.data.contact.geom1
-        g2 = self.data.contact.geom2
-        floor = self.floor_geom_id
-        other = np.where(g1 == floor, g2, np.where(g2 == floor, g1, -1))
-        return bool(np.isin(other, geom_ids).any())
+        if geoms.dtype != bool:
+            mask = np.zeros(self.model.ngeom, dtype=bool)
+            mask[geoms] = True
+            geoms = mask
+        c = self.data.contact
+        g1, g2, floor = c.geom1, c.geom2, self.floor_geom_id
+        return bool(geoms[g2[g1 == floor]].any() or geoms[g1[g2 == floor]].any())
