@@ -4,8 +4,8 @@ A :class:`DaemonConfig` is valid once it exists (``__post_init__`` checks every 
 the service never re-validates. Two groups of fields:
 
 * *learner* fields (:data:`LEARNER_FIELDS`) define a learning run and are stored with it:
-  task, theta0, sigma, eta, epsilon, lr_range, kappa (the initial one), weights, seed,
-  episodes. A resumed run takes them from the store (see ``service.open_run``).
+  task, theta0, sigma, eta, epsilon, lr_range, kappa (the initial one), weights, seed
+  (plus the episode budget). A resumed run takes them from the store (``service.open_run``).
 * *operational* fields (robot, prefix, zenoh endpoints, db path, timeouts, retry policy,
   resume choice, linger) belong to one invocation of the daemon.
 
@@ -52,6 +52,8 @@ class ConfigError(ValueError):
 LEARNER_FIELDS: tuple[str, ...] = (
     "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed",
 )
+#: Episode budget of a new run unless configured.
+DEFAULT_EPISODES = 45
 #: Sentinel values of ``resume``.
 RESUME_LATEST, RESUME_NEW = "latest", "new"
 #: Default per-parameter exploration std as a fraction of each bound's range.
@@ -109,7 +111,8 @@ class DaemonConfig:
         prefix: key prefix (default ``ersac``).
         task: ``bracing`` or ``lifting`` (``protocol.zenoh.TASKS``).
         kappa: initial risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``.
-        episodes: successful ("ok") episodes after which the run is finished.
+        episodes: successful ("ok") episodes after which the run is finished; ``None``:
+            :data:`DEFAULT_EPISODES` for a new run, the stored budget for a resumed one.
         seed: run seed (learner RNG and scenario seeds derive from it); ``None`` draws one
             when the run is created (it is stored).
         theta0: initial policy mean, ``(dim,)`` within the task bounds (default: middle).
@@ -129,12 +132,14 @@ class DaemonConfig:
         resume: ``"latest"`` (the latest unfinished run of this robot and task, else a new
             one), ``"new"`` or a run id.
         linger: keep serving the control plane after the run finished (until SIGTERM).
+        explicit: names of the fields set by a file or a flag (not defaults); a resumed run
+            refuses explicit learner fields that differ from its stored ones.
     """
 
     robot: str
     task: str = "bracing"
     kappa: float = 0.0
-    episodes: int = 45
+    episodes: int | None = None
     seed: int | None = None
     theta0: tuple[float, ...] | None = None
     sigma: tuple[float, ...] | None = None
@@ -151,6 +156,7 @@ class DaemonConfig:
     agent_wait_s: float | None = None
     resume: str = RESUME_LATEST
     linger: bool = False
+    explicit: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -160,7 +166,8 @@ class DaemonConfig:
         except (PayloadError, ValueError) as exc:
             raise ConfigError(str(exc)) from None
         set_("kappa", _finite(self.kappa, "kappa", KAPPA_MIN, KAPPA_MAX))
-        set_("episodes", _int(self.episodes, "episodes", 1, 1_000_000))
+        if self.episodes is not None:
+            set_("episodes", _int(self.episodes, "episodes", 1, 1_000_000))
         if self.seed is not None:
             set_("seed", _int(self.seed, "seed", 0, 2**63 - 1))
         theta0 = default_theta0(self.task) if self.theta0 is None else self.theta0
@@ -212,6 +219,11 @@ class DaemonConfig:
             raise ConfigError(f"resume must be 'latest', 'new' or a run id, got {self.resume!r}")
         if not isinstance(self.linger, bool):
             raise ConfigError(f"linger must be true or false, got {self.linger!r}")
+        set_("explicit", frozenset(self.explicit))
+
+    @property
+    def episodes_or_default(self) -> int:
+        return DEFAULT_EPISODES if self.episodes is None else self.episodes
 
     @property
     def keys(self) -> KeySpace:
@@ -224,11 +236,11 @@ class DaemonConfig:
         out["weights"] = dict(self.weights or {})
         for key in ("theta0", "sigma", "lr_range"):
             out[key] = list(out[key])
-        out["episodes"] = self.episodes
+        out["episodes"] = self.episodes_or_default
         return out
 
     def with_learner_settings(self, stored: Mapping[str, Any]) -> DaemonConfig:
-        """This config with the learner fields (and episodes unless overridden) of a stored run."""
+        """This config with the learner fields of a stored run (``episodes`` is left as is)."""
         changes = {k: stored[k] for k in LEARNER_FIELDS if k in stored}
         for key in ("theta0", "sigma", "lr_range"):
             if key in changes:
@@ -240,6 +252,7 @@ class DaemonConfig:
         out = asdict(self)
         out["db"] = str(self.db)
         out["weights"] = dict(self.weights or {})
+        out["explicit"] = sorted(self.explicit)
         return out
 
 
@@ -259,7 +272,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
-    unknown = sorted(set(data) - _FIELD_NAMES)
+    unknown = sorted(set(data) - (_FIELD_NAMES - {"explicit"}))
     if unknown:
         raise ConfigError(f"config file {path}: unknown keys {unknown}; known: {sorted(_FIELD_NAMES)}")
     out = dict(data)
@@ -289,6 +302,7 @@ def merge(file_values: Mapping[str, Any], flag_values: Mapping[str, Any]) -> Dae
         values[key] = value
     if flag_weights:
         values["weights"] = {**dict(values.get("weights") or {}), **flag_weights}
+    values["explicit"] = frozenset(k for k in values if k != "explicit")
     if "robot" not in values:
         raise ConfigError("the robot name is required (--robot NAME or robot = \"...\" in the config file)")
     try:

@@ -9,8 +9,9 @@ Tables (schema version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``)::
               ``idx`` is the learner episode the attempt serves; at most one "ok" attempt
               per (run, idx) (a partial unique index enforces it).
     updates   one row per learner update (= per ok episode, same idx): theta before/after,
-              the cost told, J~(theta), r~(theta), r~(theta+z), kappa, step size and the
-              learner's resumable state after the update (RNG state...; JSON).
+              the cost told, J~(theta), r~(theta), r~(theta+z), the TD error (all NULL
+              during the learner's warm-up), kappa, step size and the learner's resumable
+              state after the update (``ERSAC.get_state()``: RNG, theta, critic fit; JSON).
     changes   kappa / weights / theta (adopted selection) changes with their source and the
               number of updates done when they took effect.
 
@@ -25,11 +26,10 @@ floats as ``repr`` text, so values round-trip exactly.
 from __future__ import annotations
 
 import json
-import math
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +41,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "RUN_STATUSES",
     "ATTEMPT_STATUSES",
+    "DAEMON_STATUSES",
     "CHANGE_KINDS",
     "StoreError",
     "RunNotFound",
@@ -53,10 +54,12 @@ __all__ = [
 
 SCHEMA_VERSION = 1
 RUN_STATUSES: tuple[str, ...] = ("running", "finished", "failed")
-#: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own:
-#: pending (sent, no answer yet), timeout (no reply in time), refused (agent reply_err),
+#: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own: pending (sent, no
+#: answer yet), timeout (no reply in time), lost (the agent's liveliness token vanished while
+#: the episode ran), refused (agent reply_err), bad_reply (a reply that breaks the contract),
 #: interrupted (the daemon stopped or died while the attempt was pending).
-ATTEMPT_STATUSES: tuple[str, ...] = (*STATUSES, "pending", "timeout", "refused", "interrupted")
+DAEMON_STATUSES: tuple[str, ...] = ("pending", "timeout", "lost", "refused", "bad_reply", "interrupted")
+ATTEMPT_STATUSES: tuple[str, ...] = (*STATUSES, *DAEMON_STATUSES)
 CHANGE_KINDS: tuple[str, ...] = ("kappa", "weights", "theta")
 
 _SCHEMA = f"""
@@ -103,9 +106,10 @@ CREATE TABLE updates (
     theta_before TEXT NOT NULL,
     theta_after TEXT NOT NULL,
     cost        REAL NOT NULL,
-    J           REAL NOT NULL,
-    r           REAL NOT NULL,
-    r_z         REAL NOT NULL,
+    J           REAL,
+    r           REAL,
+    r_z         REAL,
+    td_error    REAL,
     kappa       REAL NOT NULL,
     lr          REAL NOT NULL,
     state       TEXT NOT NULL,
@@ -141,6 +145,10 @@ def _dumps(value: Any) -> str:
 
 def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
+
+
+def _opt(value: float | None) -> float | None:
+    return None if value is None else float(value)
 
 
 def _vec(values: Sequence[float]) -> str:
@@ -196,7 +204,8 @@ class EpisodeRecord:
 
 @dataclass(frozen=True)
 class UpdateRecord:
-    """One learner update (after ok episode ``idx``). ``state``: learner state after it."""
+    """One learner update (after ok episode ``idx``). ``state``: learner state after it.
+    ``J``, ``r``, ``r_z``, ``td_error`` are ``None`` for warm-up updates (no step)."""
 
     run_id: str
     idx: int
@@ -204,9 +213,10 @@ class UpdateRecord:
     theta_before: tuple[float, ...]
     theta_after: tuple[float, ...]
     cost: float
-    J: float
-    r: float
-    r_z: float
+    J: float | None
+    r: float | None
+    r_z: float | None
+    td_error: float | None
     kappa: float
     lr: float
     state: Mapping[str, Any]
@@ -249,7 +259,8 @@ def _episode(row: sqlite3.Row) -> EpisodeRecord:
 def _update(row: sqlite3.Row) -> UpdateRecord:
     return UpdateRecord(
         row["run_id"], row["idx"], row["episode_id"], _tuple(row["theta_before"]),
-        _tuple(row["theta_after"]), row["cost"], row["J"], row["r"], row["r_z"], row["kappa"],
+        _tuple(row["theta_after"]), row["cost"], row["J"], row["r"], row["r_z"], row["td_error"],
+        row["kappa"],
         row["lr"], json.loads(row["state"]), row["stamp_s"],
     )
 
@@ -432,10 +443,10 @@ class Store:
         with self.transaction() as db:
             self._finish(db, episode_id, "ok", result, float(cost), "")
             db.execute(
-                "INSERT INTO updates VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO updates VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (update.run_id, update.idx, update.episode_id, _vec(update.theta_before),
-                 _vec(update.theta_after), float(update.cost), float(update.J), float(update.r),
-                 float(update.r_z), float(update.kappa), float(update.lr),
+                 _vec(update.theta_after), float(update.cost), _opt(update.J), _opt(update.r),
+                 _opt(update.r_z), _opt(update.td_error), float(update.kappa), float(update.lr),
                  _dumps(dict(update.state)), update.stamp_s),
             )
             db.execute("UPDATE runs SET updated_s = ? WHERE run_id = ?", (update.stamp_s, update.run_id))
@@ -499,19 +510,23 @@ class Store:
         row = db.execute("SELECT * FROM changes WHERE seq = ?", (cur.lastrowid,)).fetchone()
         return _change(row)
 
-    def record_weights(self, run_id: str, weights: Mapping[str, float], source: str) -> ChangeRecord:
+    def record_weights(self, run_id: str, weights: Mapping[str, float], source: str,
+                       cost_of: Callable[[Mapping[str, float]], float] | None = None) -> ChangeRecord:
         """Record new complete weights and re-cost every ok episode of the run, atomically.
 
-        ``cost = TaskSpec.total_cost(cost_terms, weights)`` for every ok episode.
+        ``cost = cost_of(cost_terms)`` for every ok episode; ``cost_of`` must use ``weights``
+        (default ``TaskSpec.total_cost(terms, weights)``; the daemon passes the learner's own
+        combination so the store holds exactly the costs the learner uses).
         """
         run = self.run(run_id)
         spec = get_task(run.task)
         checked = dict(spec.check_weights(weights))
+        combine = cost_of if cost_of is not None else (lambda terms: spec.total_cost(terms, checked))
         with self.transaction() as db:
             rows = db.execute("SELECT episode_id, cost_terms FROM episodes WHERE run_id = ? AND status = 'ok'",
                               (run_id,)).fetchall()
             for row in rows:
-                cost = spec.total_cost(json.loads(row["cost_terms"]), checked)
+                cost = float(combine(json.loads(row["cost_terms"])))
                 db.execute("UPDATE episodes SET cost = ? WHERE episode_id = ?", (cost, row["episode_id"]))
             return self._insert_change(db, run_id, "weights", checked, source, None)
 
@@ -528,7 +543,3 @@ class Store:
                            (run_id, kind))
         return _change(rows[0]) if rows else None
 
-
-def finite_or_none(value: float | None) -> float | None:
-    """``value`` if finite, else ``None`` (for JSON summaries)."""
-    return value if value is not None and math.isfinite(value) else None

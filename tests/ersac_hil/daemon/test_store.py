@@ -25,7 +25,7 @@ def _result(eid: str, terms: dict[str, float], status: str = "ok") -> EpisodeRes
 
 
 def _update(run_id: str, idx: int, eid: str, before: float, after: float) -> UpdateRecord:
-    return UpdateRecord(run_id, idx, eid, (before,), (after,), 1.5, 1.2, 0.3, 0.35, 2.0, 0.2,
+    return UpdateRecord(run_id, idx, eid, (before,), (after,), 1.5, 1.2, 0.3, 0.35, 0.1, 2.0, 0.2,
                         {"rng": {"state": 12345678901234567890123}, "note": "x"}, 1000.0 + idx)
 
 
@@ -102,7 +102,7 @@ def test_success_and_update_are_one_transaction(store):
     bad = _update("run1", 0, "run1.99999.0", 0.5, 0.5)  # refers to an unknown episode
     with pytest.raises(StoreError):
         store.record_success(eid, _result(eid, terms), 1.0, bad)
-    broken = UpdateRecord("run1", 0, eid, (0.5,), (0.5,), math.nan, 0, 0, 0, 0, 0, {}, 0.0)
+    broken = UpdateRecord("run1", 0, eid, (0.5,), (0.5,), math.nan, 0, 0, 0, 0, 0, 0, {}, 0.0)
     with pytest.raises(sqlite3.IntegrityError):  # NaN cost -> NOT NULL violation -> rollback
         store.record_success(eid, _result(eid, terms), 1.0, broken)
     assert [e.status for e in store.attempts("run1")] == ["pending"]
@@ -148,7 +148,7 @@ def test_a_killed_writer_leaves_only_whole_episodes(tmp_path):
             if i == 40:
                 os.kill(os.getpid(), signal.SIGKILL)
             r = EpisodeResult(eid, "bracing", "ok", terms, spec.total_cost(terms))
-            s.record_success(eid, r, 1.0, UpdateRecord("k", i, eid, (0.5,), (0.5,), 1.0, 1.0, 0.1, 0.1, 0.0, 0.1, {{}}, 0.0))
+            s.record_success(eid, r, 1.0, UpdateRecord("k", i, eid, (0.5,), (0.5,), 1.0, None, None, None, None, 0.0, 0.1, {{}}, 0.0))
     """)
     proc = subprocess.run([sys.executable, "-c", code], timeout=60)
     assert proc.returncode == -9

@@ -1,0 +1,292 @@
+"""``ersac-hil`` subcommands of the daemon package (picked up by ``ersac_hil.cli``).
+
+Services: ``daemon`` (the learner), ``router`` (embedded Zenoh router on 127.0.0.1).
+Clients (Zenoh client sessions): ``state``, ``kappa get|set``, ``weights get|set``,
+``critic``, ``select``. Offline: ``report``.
+
+Exit codes: 0 ok, 1 request refused / no answer, 2 invalid arguments or configuration,
+3 run failed, 4 agent absent too long, 128+N on signal N.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register"]
+
+_DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
+
+
+def _weight(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f"ersac-hil: {message}", file=sys.stderr, flush=True)
+    return code
+
+
+# --------------------------------------------------------------------------- services
+def _daemon(args: argparse.Namespace) -> int:
+    from ersac_hil.lifecycle import serve
+
+    from .config import ConfigError, load_toml, merge
+    from .service import Daemon
+    from .store import StoreError
+    from ersac_hil.zenoh_session import ZenohSessionError
+
+    flags: dict[str, Any] = {
+        "robot": args.robot, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
+        "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
+        "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
+        "zenoh": tuple(args.zenoh) if args.zenoh else None,
+        "db": Path(args.db) if args.db else None, "episode_timeout_s": args.episode_timeout,
+        "max_attempts": args.max_attempts, "backoff_s": args.backoff, "agent_wait_s": args.agent_wait,
+        "resume": "new" if args.new else args.resume, "linger": True if args.linger else None,
+        "weights": dict(args.weight) if args.weight else None,
+    }
+    try:
+        config = merge(load_toml(args.config) if args.config else {}, flags)
+        daemon = Daemon(config)
+        code = serve(daemon, until=daemon.finished)
+    except (ConfigError, StoreError) as exc:
+        return _fail(str(exc))
+    except ZenohSessionError as exc:
+        return _fail(str(exc), 1)
+    return code or daemon.exit_code
+
+
+class _RouterService:
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self.router = None
+
+    def start(self) -> None:
+        from ersac_hil.zenoh_session import EmbeddedRouter
+        self.router = EmbeddedRouter(port=self.port or None).start()
+        print(f"Zenoh router: {self.router.endpoint}", flush=True)
+
+    def stop(self) -> None:
+        if self.router is not None:
+            self.router.close()
+        print("Zenoh router stopped", flush=True)
+
+
+def _router(args: argparse.Namespace) -> int:
+    from ersac_hil.lifecycle import serve
+    from ersac_hil.zenoh_session import ZenohSessionError
+    try:
+        return serve(_RouterService(args.port))
+    except ZenohSessionError as exc:
+        return _fail(str(exc), 1)
+
+
+# --------------------------------------------------------------------------- clients
+def _client_call(args: argparse.Namespace, action) -> int:  # noqa: ANN001
+    from protocol.zenoh import KeySpace, PayloadError
+    from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError
+
+    from .clients import ClientError, LearnerClient, RequestRefused
+
+    try:
+        keys = KeySpace(args.robot, args.prefix)
+        with LearnerClient(keys, args.zenoh or [_DEFAULT_ENDPOINT], args.timeout) as client:
+            reply = action(client)
+    except (PayloadError, ZenohConfigError, ValueError) as exc:
+        return _fail(str(exc))
+    except RequestRefused as exc:
+        return _fail(f"refused ({exc.error.code}): {exc.error.reason}", 1)
+    except (ClientError, ZenohSessionError) as exc:
+        return _fail(str(exc), 1)
+    if args.json:
+        print(reply.to_json().decode(), flush=True)
+    else:
+        print(_human(reply), flush=True)
+    return 0
+
+
+def _human(reply: Any) -> str:
+    kind = reply.TYPE
+    if kind == "learner_state":
+        lines = [f"run       {reply.run_id}", f"task      {reply.task}", f"status    {reply.status}",
+                 f"episodes  {reply.episode_count}", f"theta     {list(reply.theta)}",
+                 f"sigma     {list(reply.sigma)}", f"kappa     {reply.kappa:g}",
+                 f"weights   {dict(reply.weights)}"]
+        return "\n".join(lines)
+    if kind == "critic_reply":
+        rows = [f"{'theta':>24}  {'J~':>10}  {'r~':>10}  {'F~':>10}   (kappa {reply.kappa:g})"]
+        rows += [f"{','.join(f'{x:.4f}' for x in p.theta):>24}  {p.J:10.4f}  {p.r:10.4f}  {p.F:10.4f}"
+                 for p in reply.points]
+        return "\n".join(rows)
+    if kind == "select_reply":
+        return (f"selected theta {list(reply.theta)}\nJ~ {reply.J:.4f}  r~ {reply.r:.4f}  "
+                f"F~ {reply.F:.4f}  (kappa {reply.kappa:g})\nweights {dict(reply.weights)}\n"
+                f"adopted {reply.adopted}")
+    return reply.to_json().decode()
+
+
+def _state(args: argparse.Namespace) -> int:
+    return _client_call(args, lambda c: c.state())
+
+
+def _kappa(args: argparse.Namespace) -> int:
+    if args.action == "get":
+        if args.value is not None:
+            return _fail("kappa get takes no value")
+        if args.json:
+            return _client_call(args, lambda c: c.state())
+        return _client_call(argparse.Namespace(**{**vars(args), "json": False}),
+                            lambda c: _Text(f"{c.state().kappa:g}"))
+    if args.value is None:
+        return _fail("kappa set needs a VALUE")
+    return _client_call(args, lambda c: c.set_kappa(args.value))
+
+
+def _weights(args: argparse.Namespace) -> int:
+    if args.action == "get":
+        return _client_call(args, lambda c: _Text(json.dumps(dict(c.state().weights))))
+    if not args.weight:
+        return _fail("weights set needs NAME=VALUE ...")
+    return _client_call(args, lambda c: c.set_weights(dict(args.weight)))
+
+
+class _Text:
+    TYPE = "text"
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def to_json(self) -> bytes:
+        return self.text.encode()
+
+
+def _critic(args: argparse.Namespace) -> int:
+    from protocol.zenoh import CriticQuery
+    if (args.grid is None) == (not args.theta):
+        return _fail("give --theta (repeatable) or --grid N")
+    query = CriticQuery(tuple(args.theta or ()), args.grid, args.kappa)
+    return _client_call(args, lambda c: c.critic(query))
+
+
+def _select(args: argparse.Namespace) -> int:
+    from protocol.zenoh import SelectQuery
+    query = SelectQuery(args.kappa, dict(args.weight) if args.weight else None, args.adopt)
+    return _client_call(args, lambda c: c.select(query))
+
+
+# --------------------------------------------------------------------------- report
+def _report(args: argparse.Namespace) -> int:
+    from .report import write_report
+    from .store import StoreError
+    try:
+        summary = write_report(args.db, args.run_id, args.out)
+    except StoreError as exc:
+        return _fail(str(exc))
+    print(f"report of run {summary['run_id']} in {Path(args.out).resolve()}: "
+          f"{', '.join(summary['files'])}", flush=True)
+    return 0
+
+
+# --------------------------------------------------------------------------- parsers
+def _client_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
+    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    p.add_argument("--zenoh", action="append", metavar="ENDPOINT",
+                   help=f"router endpoint to connect to (default {_DEFAULT_ENDPOINT}); repeatable")
+    p.add_argument("--timeout", type=float, default=10.0, help="seconds per request (default 10)")
+    p.add_argument("--json", action="store_true", help="print the reply payload as JSON")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this package's subcommands to the ``ersac-hil`` parser."""
+    p = sub.add_parser("daemon", help="the learner daemon (ERSAC against the agent's episode/run)",
+                       description="Learn with ERSAC by asking the robot-side agent to run episodes. "
+                                   "Flags override the --config TOML file.")
+    p.add_argument("--config", metavar="FILE", help="TOML config file (keys = long flag names with _)")
+    p.add_argument("--robot", help="robot name (required here or in the file)")
+    p.add_argument("--prefix", help="key prefix (default ersac)")
+    p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
+    p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")
+    p.add_argument("--episodes", type=int, help="ok episodes in the run (default 45)")
+    p.add_argument("--seed", type=int, help="run seed (default: random, stored)")
+    p.add_argument("--theta0", type=_floats, help="initial policy mean, comma-separated")
+    p.add_argument("--sigma", type=_floats, help="exploration std per parameter, comma-separated")
+    p.add_argument("--eta", type=float, help="learning rate (default 0.1)")
+    p.add_argument("--epsilon", type=float, help="critic neighbourhood radius (default 0.25)")
+    p.add_argument("--lr-range", dest="lr_range", type=_floats, help="clip of eta/r~ (default 0.01,0.5)")
+    p.add_argument("--weight", action="append", type=_weight, metavar="NAME=VALUE",
+                   help="cost-term weight (repeatable; default: the task's)")
+    p.add_argument("--zenoh", action="append", metavar="ENDPOINT",
+                   help=f"router endpoint (default {_DEFAULT_ENDPOINT}); repeatable")
+    p.add_argument("--db", help="SQLite store (default ersac.db)")
+    p.add_argument("--episode-timeout", dest="episode_timeout", type=float,
+                   help="seconds one episode may take (default 60)")
+    p.add_argument("--max-attempts", dest="max_attempts", type=int,
+                   help="failed attempts of one request before the run fails (default 5)")
+    p.add_argument("--backoff", type=_floats, metavar="INITIAL,MAX", help="retry backoff (default 0.5,10)")
+    p.add_argument("--agent-wait", dest="agent_wait", type=float,
+                   help="give up after waiting this long for an absent agent (default: forever)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--resume", metavar="RUN_ID",
+                       help="resume this run (default: the latest unfinished run of robot+task)")
+    group.add_argument("--new", action="store_true", help="start a new run")
+    p.add_argument("--linger", action="store_true", help="keep serving the control plane when done")
+    p.set_defaults(func=_daemon)
+
+    if "router" not in sub.choices:
+        p = sub.add_parser("router", help="embedded Zenoh router on 127.0.0.1")
+        p.add_argument("--port", type=int, default=7447, help="TCP port (default 7447; 0 = a free one)")
+        p.set_defaults(func=_router)
+
+    p = sub.add_parser("state", help="the learner's state (theta, kappa, weights, episodes)")
+    _client_options(p)
+    p.set_defaults(func=_state)
+
+    p = sub.add_parser("kappa", help="get or set the learner's risk sensitivity")
+    p.add_argument("action", choices=("get", "set"))
+    p.add_argument("value", nargs="?", type=float)
+    _client_options(p)
+    p.set_defaults(func=_kappa)
+
+    p = sub.add_parser("weights", help="get or set the cost-term weights (re-costs every episode)")
+    p.add_argument("action", choices=("get", "set"))
+    p.add_argument("weight", nargs="*", type=_weight, metavar="NAME=VALUE")
+    _client_options(p)
+    p.set_defaults(func=_weights)
+
+    p = sub.add_parser("critic", help="critic J~, r~, F~ at points or on a grid")
+    p.add_argument("--theta", action="append", type=_floats, help="a point, comma-separated; repeatable")
+    p.add_argument("--grid", type=int, help="N points per dimension over the task box")
+    p.add_argument("--kappa", type=float, help="kappa for F~ (default: the learner's)")
+    _client_options(p)
+    p.set_defaults(func=_critic)
+
+    p = sub.add_parser("select", help="offline policy selection: minimise F~ = J~ + kappa r~")
+    p.add_argument("--kappa", type=float, required=True)
+    p.add_argument("--weight", action="append", type=_weight, metavar="NAME=VALUE",
+                   help="cost-term weight for this selection (repeatable)")
+    p.add_argument("--adopt", action="store_true", help="make the selected theta the policy mean")
+    _client_options(p)
+    p.set_defaults(func=_select)
+
+    p = sub.add_parser("report", help="plots and summary.json of a run")
+    p.add_argument("run_id")
+    p.add_argument("--db", default="ersac.db", help="SQLite store (default ersac.db)")
+    p.add_argument("--out", default="report", help="output directory (default ./report)")
+    p.set_defaults(func=_report)

@@ -1,0 +1,154 @@
+"""Zenoh clients of the learner's control plane, for people (CLI) and programs (tests, demo).
+
+Each client is a Zenoh *client* session connected to explicit loopback endpoints. Queries
+return the typed reply or raise :class:`RequestRefused` (the learner's ``ErrorReply``) /
+:class:`NoAnswer`. Puts (kappa, weights) are confirmed by polling ``learner/state`` until the
+new value shows, while listening on ``learner/error`` for a refusal.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import time
+from collections.abc import Mapping, Sequence
+from typing import TypeVar
+
+import zenoh
+
+from ersac_hil.zenoh_session import make_config, open_session
+from protocol.zenoh import (
+    CriticQuery,
+    CriticReply,
+    ErrorReply,
+    KappaCommand,
+    KeySpace,
+    LearnerState,
+    Message,
+    PayloadError,
+    SelectQuery,
+    SelectReply,
+    WeightsCommand,
+)
+
+__all__ = ["ClientError", "RequestRefused", "NoAnswer", "LearnerClient"]
+
+_M = TypeVar("_M", bound=Message)
+
+
+class ClientError(RuntimeError):
+    """A control-plane request that did not succeed."""
+
+
+class RequestRefused(ClientError):
+    """The learner refused the request; ``error`` is its ``ErrorReply``."""
+
+    def __init__(self, error: ErrorReply) -> None:
+        super().__init__(f"{error.code}: {error.reason}")
+        self.error = error
+
+
+class NoAnswer(ClientError):
+    """No learner answered in time (not running, wrong robot name or endpoint)."""
+
+
+class LearnerClient:
+    """A control-plane client for one robot.
+
+    Args:
+        keys: the robot's key space.
+        endpoints: Zenoh endpoints (``tcp/127.0.0.1:PORT``) to connect to.
+        timeout_s: per-request timeout.
+    """
+
+    def __init__(self, keys: KeySpace, endpoints: Sequence[str], timeout_s: float = 10.0) -> None:
+        self.keys = keys
+        self.timeout_s = timeout_s
+        self._session = open_session(make_config("client", connect=list(endpoints)))
+
+    def close(self) -> None:
+        self._session.close()
+
+    def __enter__(self) -> LearnerClient:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ queries
+    def _get(self, key: str, parameters: str, cls: type[_M], timeout_s: float | None = None) -> _M:
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        selector = KeySpace.selector(key, parameters or None)
+        for reply in self._session.get(selector, timeout=timeout):
+            if reply.ok is not None:
+                try:
+                    return cls.from_json(reply.ok.payload)
+                except PayloadError as exc:
+                    raise ClientError(f"invalid {cls.TYPE} from {key}: {exc}") from exc
+            raw = reply.err.payload.to_bytes()
+            try:
+                error = ErrorReply.from_json(raw)
+            except PayloadError:
+                text = raw.decode("utf-8", "replace")[:4096] or "error without reason"
+                code = "timeout" if "timeout" in text.lower() else "internal"
+                if code == "timeout":
+                    raise NoAnswer(f"no answer on {key} within {timeout:g} s") from None
+                error = ErrorReply(code, text)
+            raise RequestRefused(error)
+        raise NoAnswer(f"no learner answered on {key} within {timeout:g} s "
+                       "(is the daemon running for this robot and endpoint?)")
+
+    def state(self, timeout_s: float | None = None) -> LearnerState:
+        return self._get(self.keys.learner_state, "", LearnerState, timeout_s)
+
+    def critic(self, query: CriticQuery) -> CriticReply:
+        return self._get(self.keys.learner_critic, query.to_parameters(), CriticReply)
+
+    def select(self, query: SelectQuery) -> SelectReply:
+        return self._get(self.keys.learner_select, query.to_parameters(), SelectReply)
+
+    # ------------------------------------------------------------------ puts
+    def put_raw(self, kind: str, payload: bytes) -> None:
+        """Put raw bytes on ``learner/<kind>`` (``kappa`` or ``weights``), unchecked."""
+        key = {"kappa": self.keys.learner_kappa, "weights": self.keys.learner_weights}[kind]
+        self._session.put(key, payload)
+
+    def _put_confirmed(self, kind: str, payload: bytes, done) -> LearnerState:  # noqa: ANN001
+        errors: queue.Queue[ErrorReply] = queue.Queue()
+
+        def on_error(sample: zenoh.Sample) -> None:
+            try:
+                error = ErrorReply.from_json(sample.payload)
+            except PayloadError:
+                return
+            if error.reason.startswith(f"learner/{kind}:"):
+                errors.put(error)
+
+        subscriber = self._session.declare_subscriber(self.keys.learner_error, on_error)
+        try:
+            self.state()  # the learner is there, and our subscriber had time to propagate
+            self.put_raw(kind, payload)
+            deadline = time.monotonic() + self.timeout_s
+            while time.monotonic() < deadline:
+                try:
+                    raise RequestRefused(errors.get(timeout=0.05))
+                except queue.Empty:
+                    pass
+                state = self.state()
+                if done(state):
+                    return state
+            raise NoAnswer(f"learner/{kind} not applied within {self.timeout_s:g} s")
+        finally:
+            subscriber.undeclare()
+
+    def set_kappa(self, kappa: float) -> LearnerState:
+        """Put a new kappa and wait until the learner shows it. Raises PayloadError if invalid."""
+        command = KappaCommand(kappa)
+        return self._put_confirmed("kappa", command.to_json(),
+                                   lambda s: math.isclose(s.kappa, command.kappa, rel_tol=0, abs_tol=0))
+
+    def set_weights(self, weights: Mapping[str, float]) -> LearnerState:
+        """Put (partial) new weights and wait until the learner shows them."""
+        command = WeightsCommand(weights)
+        return self._put_confirmed(
+            "weights", command.to_json(),
+            lambda s: all(s.weights.get(k) == v for k, v in command.weights.items()))

@@ -1,0 +1,216 @@
+"""The learner of one run: ``ersac_hil.learner.ERSAC`` plus the task's cost terms.
+
+The daemon's only door to the numerical core. Not thread-safe: the daemon holds its lock.
+Vectors are tuples of shape ``(dim,)``; cost terms are mappings of the task's term names.
+
+Resume (:meth:`Engine.restore`): ``ERSAC.from_state`` with the state stored after the last
+update (RNG, theta, kappa, last critic fit, observation digest), then every stored ok
+episode re-observed in order; the latest kappa and weights are applied and a theta adopted
+after the last update replaces the stored one. The next ``propose`` then draws exactly the
+perturbation an uninterrupted learner would have drawn.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ersac_hil.learner import ERSAC, CostWeights, InsufficientDataError
+from protocol.zenoh import get_task
+
+__all__ = ["Engine", "Proposal", "Step", "NotEnoughData"]
+
+
+class NotEnoughData(RuntimeError):
+    """The critic or the selection needs more ok episodes."""
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """One ask: policy mean ``base_theta``, realised perturbation ``z`` (after keeping the
+    executed parameters in bounds) and executed ``theta = base_theta + z``."""
+
+    base_theta: tuple[float, ...]
+    z: tuple[float, ...]
+    theta: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One tell. ``J``, ``r`` (at theta_before), ``r_z`` (at the executed theta) and
+    ``td_error`` are ``None`` during the learner's warm-up (no update yet)."""
+
+    theta_before: tuple[float, ...]
+    theta_after: tuple[float, ...]
+    cost: float
+    J: float | None
+    r: float | None
+    r_z: float | None
+    td_error: float | None
+    kappa: float
+    lr: float
+    warmup: bool
+
+
+def _tuple(a: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.asarray(a, dtype=float).reshape(-1))
+
+
+class Engine:
+    """ERSAC for one task. Build with :meth:`create` or :meth:`restore`."""
+
+    def __init__(self, task: str, learner: ERSAC) -> None:
+        self.task = task
+        self.spec = get_task(task)
+        self._learner = learner
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def create(cls, task: str, settings: Mapping[str, Any]) -> Engine:
+        """A fresh learner from the run's stored settings (theta0, sigma, eta, kappa, epsilon,
+        lr_range, weights, seed)."""
+        spec = get_task(task)
+        learner = ERSAC(
+            np.asarray(settings["theta0"], dtype=float),
+            np.asarray(settings["sigma"], dtype=float),
+            float(settings["eta"]),
+            float(settings["kappa"]),
+            float(settings["epsilon"]),
+            np.column_stack([spec.lower, spec.upper]),
+            lr_range=tuple(settings["lr_range"]),
+            seed=int(settings["seed"]),
+            weights=CostWeights(dict(settings["weights"])),
+        )
+        return cls(task, learner)
+
+    @classmethod
+    def restore(cls, task: str, settings: Mapping[str, Any],
+                observations: Sequence[tuple[Sequence[float], Mapping[str, float]]],
+                kappa: float, weights: Mapping[str, float], theta: Sequence[float],
+                state: Mapping[str, Any] | None) -> Engine:
+        """The learner after the last stored update (see module doc).
+
+        Args:
+            observations: (executed theta, cost terms) of every ok episode, in order.
+            kappa, weights, theta: the values in effect now.
+            state: ``ERSAC.get_state()`` stored with the last update; ``None`` if none yet.
+        """
+        if state is None:
+            if observations:
+                raise ValueError("observations without a learner state")
+            engine = cls.create(task, {**settings, "kappa": kappa, "weights": dict(weights),
+                                       "theta0": list(theta)})
+            return engine
+        state = dict(state)
+        state["theta"] = [float(v) for v in theta]
+        learner = ERSAC.from_state(state)
+        for x, terms in observations:
+            learner.observe(np.asarray(x, dtype=float), dict(terms))
+        engine = cls(task, learner)
+        engine.set_weights(weights)
+        engine.set_kappa(kappa)
+        return engine
+
+    # ------------------------------------------------------------------ state
+    @property
+    def theta(self) -> tuple[float, ...]:
+        return _tuple(self._learner.theta)
+
+    @property
+    def sigma(self) -> tuple[float, ...]:
+        return _tuple(self._learner.sigma)
+
+    @property
+    def kappa(self) -> float:
+        return self._learner.kappa
+
+    @property
+    def weights(self) -> dict[str, float]:
+        """Complete weights in the task's term order."""
+        w = self._learner.weights
+        return {k: float(w[k]) for k in self.spec.term_names}
+
+    @property
+    def n_observations(self) -> int:
+        return self._learner.n_observations
+
+    def snapshot(self) -> dict[str, Any]:
+        """JSON-able learner state (stored with each update)."""
+        return self._learner.get_state()
+
+    def cost(self, terms: Mapping[str, float]) -> float:
+        """The cost of ``terms`` under the current weights, exactly as the learner computes it."""
+        return float(self._learner.weights.combine(dict(terms)))
+
+    # ------------------------------------------------------------------ ask / tell
+    def propose(self) -> Proposal:
+        """Draw the next perturbation (idempotent until :meth:`learn`)."""
+        base = self._learner.theta
+        executed = self._learner.ask()
+        return Proposal(_tuple(base), _tuple(executed - base), _tuple(executed))
+
+    def learn(self, proposal: Proposal, terms: Mapping[str, float]) -> Step:
+        """Tell the learner the cost terms of the proposal's episode."""
+        u = self._learner.tell(np.asarray(proposal.theta, dtype=float), dict(terms))
+        opt = lambda v: None if v is None else float(v)  # noqa: E731
+        return Step(_tuple(u.theta_before), _tuple(u.theta_after), float(u.cost), opt(u.J_tilde),
+                    opt(u.r_tilde), opt(u.r_tilde_perturbed), opt(u.td_error), float(u.kappa),
+                    float(u.step_size), bool(u.warmup))
+
+    # ------------------------------------------------------------------ changes
+    def set_kappa(self, kappa: float) -> None:
+        self._learner.kappa = float(kappa)
+
+    def set_weights(self, weights: Mapping[str, float]) -> None:
+        """Complete new weights; every stored observation is re-costed by the learner."""
+        self._learner.reweight(CostWeights(dict(weights)))
+
+    def adopt(self, theta: Sequence[float]) -> None:
+        """Make ``theta`` the policy mean (no pending proposal allowed).
+
+        ERSAC has no theta setter: the learner is rebuilt from its own state with the new
+        theta and its observations re-observed (exact: same RNG, same critic fit)."""
+        if self._learner.pending is not None:
+            raise RuntimeError("cannot adopt a theta while a proposal is pending")
+        store = self._learner.store
+        names = store.weights.names
+        observations = [(x, dict(zip(names, row))) for x, row in zip(store.points, store.terms)]
+        state = self._learner.get_state()
+        state["theta"] = [float(v) for v in theta]
+        learner = ERSAC.from_state(state)
+        for x, terms in observations:
+            learner.observe(np.array(x), terms)
+        self._learner = learner
+
+    # ------------------------------------------------------------------ critic / selection
+    def critic(self, points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:
+        """(J~, r~) at every point, each from the VHGP of the point's neighbourhood."""
+        out = []
+        try:
+            for p in points:
+                e = self._learner.critic_estimate(np.asarray(p, dtype=float))
+                out.append((float(e.J), float(e.r)))
+        except InsufficientDataError as exc:
+            raise NotEnoughData(str(exc)) from exc
+        return out
+
+    def select(self, kappa: float, weights: Mapping[str, float] | None = None
+               ) -> tuple[tuple[float, ...], float, float]:
+        """Offline selection: argmin of F~ = J~ + kappa r~ in the data's trust region, under
+        ``weights`` (default: the current ones; the learner's own weights are restored
+        exactly afterwards). Returns (theta, J~, r~)."""
+        current = self.weights
+        temporary = weights is not None and dict(weights) != current
+        try:
+            if temporary:
+                self.set_weights(weights)
+            sel = self._learner.select(float(kappa))
+        except InsufficientDataError as exc:
+            raise NotEnoughData(str(exc)) from exc
+        finally:
+            if temporary:
+                self.set_weights(current)
+        return _tuple(sel.theta), float(sel.J_tilde), float(sel.r_tilde)
+

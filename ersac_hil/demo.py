@@ -1,0 +1,276 @@
+"""``ersac-hil demo``: the whole stack on loopback, one learning run, a report, clean shutdown.
+
+Child processes, each in its own process group, started in this order and stopped in the
+reverse order (SIGTERM, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM of the demo,
+and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
+
+    router   ersac-hil router --port P                      embedded Zenoh router
+    hub      ersac-hil bus --port H                         loopback CAN hub
+    sim      ersac-hil sim --bus-interface remote --bus-channel ws://127.0.0.1:H/ --seed N
+    agent    ersac-hil agent --robot R --bus-interface remote --bus-channel ... --zenoh tcp/127.0.0.1:P
+    daemon   ersac-hil daemon --robot R --task T --kappa K --episodes E --zenoh ... --db OUT/demo.db --new
+
+The daemon's progress lines are shown as they come; every child's output is kept in
+``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
+written to ``OUT`` and its location printed.
+"""
+from __future__ import annotations
+
+import argparse
+import ctypes
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["register", "Child", "DemoConfig", "run_demo"]
+
+GRACE_S = 5.0
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+class ChildFailed(RuntimeError):
+    """A child process exited early or did not become ready."""
+
+
+class Child:
+    """One child process in its own process group; output to a log file (and optionally echoed).
+
+    Args:
+        name: short name for messages and the log file.
+        argv: the command.
+        log_dir: where ``<name>.log`` goes.
+        echo: called with every output line (e.g. print), or ``None``.
+    """
+
+    def __init__(self, name: str, argv: Sequence[str], log_dir: Path, env: dict[str, str],
+                 echo: Callable[[str], None] | None = None) -> None:
+        self.name = name
+        self.argv = list(argv)
+        self.log_path = log_dir / f"{name}.log"
+        self._echo = echo
+        self._lines: list[str] = []
+        self._cond = threading.Condition()
+        self._log = open(self.log_path, "w", buffering=1)
+        self._log.write("$ " + " ".join(self.argv) + "\n")
+        self.proc = subprocess.Popen(
+            self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env=env, start_new_session=True, preexec_fn=_die_with_parent, text=True, bufsize=1)
+        self._reader = threading.Thread(target=self._read, name=f"{name}-output", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.rstrip("\n")
+            self._log.write(line + "\n")
+            if self._echo is not None:
+                self._echo(line)
+            with self._cond:
+                self._lines.append(line)
+                self._cond.notify_all()
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def wait_for(self, pattern: str, timeout_s: float, stop: threading.Event | None = None) -> re.Match:
+        """Wait for an output line matching ``pattern``; raise ChildFailed on exit/timeout."""
+        regex = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        seen = 0
+        with self._cond:
+            while True:
+                for line in self._lines[seen:]:
+                    match = regex.search(line)
+                    if match:
+                        return match
+                seen = len(self._lines)
+                if stop is not None and stop.is_set():
+                    raise ChildFailed(f"{self.name}: interrupted")
+                if not self.alive() and not self._reader.is_alive():
+                    raise ChildFailed(f"{self.name} exited with {self.proc.returncode} before "
+                                      f"printing /{pattern}/; see {self.log_path}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise ChildFailed(f"{self.name} did not print /{pattern}/ within {timeout_s:g} s; "
+                                      f"see {self.log_path}")
+                self._cond.wait(min(left, 0.2))
+
+    def stop(self, grace_s: float = GRACE_S) -> int | None:
+        """SIGTERM the process group, SIGKILL it after ``grace_s``; returns the exit code."""
+        if self.alive():
+            self._signal(signal.SIGTERM)
+            try:
+                self.proc.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                self._log.write(f"[demo] {self.name} ignored SIGTERM for {grace_s:g} s: SIGKILL\n")
+                self._signal(signal.SIGKILL)
+                self.proc.wait(5.0)
+        self._signal(signal.SIGKILL)  # stragglers left in the group
+        self._reader.join(2.0)
+        self._log.close()
+        return self.proc.returncode
+
+    def _signal(self, sig: int) -> None:
+        try:
+            os.killpg(self.proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What ``ersac-hil demo`` runs.
+
+    Attributes:
+        task: ``bracing`` (default) or ``lifting``.
+        kappa: risk sensitivity of the daemon.
+        episodes: ok episodes to learn for.
+        seed: run seed of the daemon and base seed of the simulator.
+        out: report directory (holds the store ``demo.db`` and ``logs/``).
+        robot: robot name.
+        extra_daemon_args: appended to the daemon's command line.
+    """
+
+    task: str = "bracing"
+    kappa: float = 2.0
+    episodes: int = 45
+    seed: int = 1
+    out: Path = Path("demo-report")
+    robot: str = "ubot1"
+    extra_daemon_args: tuple[str, ...] = ()
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "ersac_hil.cli", *args]
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    for key, value in (("OPENBLAS_NUM_THREADS", "1"), ("OMP_NUM_THREADS", "1"), ("MUJOCO_GL", "egl")):
+        env.setdefault(key, value)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], None] = print) -> int:
+    """Run the demo until done or ``stop`` is set; always stops every child. Returns an exit code."""
+    from ersac_hil.zenoh_session import free_tcp_port
+
+    out = config.out.resolve()
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    db = out / "demo.db"
+    for stale in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
+        stale.unlink(missing_ok=True)
+    env = _env()
+    children: list[Child] = []
+    started = time.monotonic()
+    zport, cport = free_tcp_port(), free_tcp_port()
+    endpoint, channel = f"tcp/127.0.0.1:{zport}", f"ws://127.0.0.1:{cport}/"
+    code = 1
+    try:
+        def launch(name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
+            child = Child(name, argv, logs, env, echo)
+            children.append(child)
+            return child
+
+        say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}; "
+            f"logs in {logs}")
+        launch("router", _cli("router", "--port", str(zport))).wait_for(r"Zenoh router: ", 20, stop)
+        launch("hub", _cli("bus", "--port", str(cport))).wait_for(r"CAN hub: ws://", 20, stop)
+        bus = ["--bus-interface", "remote", "--bus-channel", channel]
+        sim = launch("sim", _cli("sim", *bus, "--seed", str(config.seed)))
+        agent = launch("agent", _cli("agent", "--robot", config.robot, *bus, "--zenoh", endpoint))
+        say(f"demo: router {endpoint}, CAN hub {channel}, simulator pid {sim.pid}, agent pid {agent.pid}")
+        daemon = launch("daemon", _cli(
+            "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
+            "--episodes", str(config.episodes), "--seed", str(config.seed), "--zenoh", endpoint,
+            "--db", str(db), "--new", "--agent-wait", "120", *config.extra_daemon_args),
+            echo=lambda line: say(f"  {line}"))
+        while daemon.alive() and not stop.is_set():
+            for child in (sim, agent):
+                if not child.alive():
+                    raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; "
+                                      f"see {child.log_path}")
+            time.sleep(0.2)
+        if stop.is_set():
+            say("demo: interrupted, stopping everything")
+            code = 130
+            return code
+        code = daemon.proc.wait()
+        daemon.stop()
+        if code != 0:
+            say(f"demo: the daemon exited with {code}; see {daemon.log_path}")
+        from ersac_hil.daemon.report import write_report
+        from ersac_hil.daemon.store import Store
+        with Store(db, readonly=True) as store:
+            runs = store.runs()
+        if not runs:
+            say("demo: no run in the store, no report")
+            return code or 1
+        summary = write_report(db, runs[-1].run_id, out)
+        cost = summary["cost"]
+        last = cost["last_10"]
+        say(f"demo: {summary['episodes']} episodes in {time.monotonic() - started:.0f} s; final theta "
+            f"{[round(t, 4) for t in summary['final_theta']]}; cost mean {cost['all']['mean']:.3f}"
+            + (f", last 10 mean {last['mean']:.3f} +/- {last['std']:.3f}" if last["n"] else ""))
+        say(f"demo: report in {out} ({', '.join(summary['files'])})")
+        return code
+    except ChildFailed as exc:
+        say(f"demo: {exc}")
+        return 130 if stop.is_set() else 1
+    finally:
+        for child in reversed(children):
+            rc = child.stop()
+            if rc not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM, 128 + signal.SIGINT):
+                say(f"demo: {child.name} exited with {rc} (log {child.log_path})")
+
+
+def _demo(args: argparse.Namespace) -> int:
+    stop = threading.Event()
+    received: list[int] = []
+
+    def on_signal(signum, frame) -> None:  # noqa: ANN001
+        received.append(signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot)
+        code = run_demo(config, stop, lambda line: print(line, flush=True))
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return 128 + received[0] if received else code
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``demo`` to the ``ersac-hil`` parser."""
+    p = sub.add_parser("demo", help="router, CAN hub, simulator, agent and learner on loopback; a report")
+    p.add_argument("--task", choices=("bracing", "lifting"), default="bracing")
+    p.add_argument("--kappa", type=float, default=2.0, help="risk sensitivity (default 2)")
+    p.add_argument("--episodes", type=int, default=45, help="episodes to learn for (default 45)")
+    p.add_argument("--seed", type=int, default=1, help="run and simulator seed (default 1)")
+    p.add_argument("--out", default="demo-report", help="report directory (default ./demo-report)")
+    p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
+    p.set_defaults(func=_demo)

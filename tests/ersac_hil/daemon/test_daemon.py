@@ -1,0 +1,204 @@
+"""The daemon against the synthetic agent over a real Zenoh router: configuration, kappa
+changes mid-run, an absent or vanishing agent, failed episodes, and resume after SIGKILL."""
+from __future__ import annotations
+
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import HERE, wait_until
+from ersac_hil.daemon.clients import LearnerClient
+from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
+from ersac_hil.daemon.service import EXIT_FAILED, open_run, scenario_seed
+from ersac_hil.daemon.store import Store
+from protocol.zenoh import KeySpace
+
+ROOT = HERE.parents[2]
+
+
+# --------------------------------------------------------------------------- configuration
+def test_config_defaults_file_and_flags(tmp_path):
+    path = tmp_path / "d.toml"
+    path.write_text('robot = "ubot9"\nkappa = 1.5\nepisodes = 30\nzenoh = "tcp/127.0.0.1:7999"\n'
+                    'theta0 = [0.2]\n[weights]\ndamage = 20.0\n')
+    config = merge(load_toml(path), {"kappa": 2.0, "weights": {"arm_power": 1.0}, "task": None})
+    assert config.robot == "ubot9" and config.kappa == 2.0 and config.episodes == 30  # flags win
+    assert config.zenoh == ("tcp/127.0.0.1:7999",) and config.theta0 == (0.2,)
+    assert config.weights == {"damage": 20.0, "body_acc_sq": 0.1, "arm_power": 1.0}
+    assert config.sigma == (0.1,) and config.task == "bracing"
+    assert {"kappa", "weights", "robot", "theta0"} <= config.explicit and "sigma" not in config.explicit
+    lifting = DaemonConfig(robot="r", task="lifting")
+    assert len(lifting.theta0) == 7 and len(lifting.sigma) == 7
+
+
+@pytest.mark.parametrize("text, match", [
+    ('robot = "r"\ncolour = 3\n', "unknown keys"),
+    ('robot = "r"\nkappa = 99\n', "kappa"),
+    ('robot = "r"\ntheta0 = [1.5]\n', "theta0"),
+    ('robot = "r"\ntheta0 = [0.1, 0.2]\n', "theta0"),
+    ('robot = "r"\nzenoh = ["tcp/0.0.0.0:7447"]\n', "loopback"),
+    ('robot = "a/b"\n', "robot"),
+    ('robot = "r"\n[weights]\ngravity = 1.0\n', "gravity"),
+    ('robot = "r"\nsigma = [0.0]\n', "sigma"),
+    ('robot = "r"\nlr_range = [0.5, 0.1]\n', "lr_range"),
+    ('kappa = 1.0\n', "robot"),
+    ('robot = "r"\nkappa = \n', "TOML"),
+])
+def test_bad_configs_are_refused(tmp_path, text, match):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        merge(load_toml(path), {})
+
+
+def test_resume_rules(tmp_path):
+    with Store(tmp_path / "r.db") as store:
+        base = dict(robot="r", db=tmp_path / "r.db", seed=3, kappa=2.0)
+        run, config, resumed = open_run(store, DaemonConfig(**base))
+        assert not resumed and run.seed == 3 and run.settings["episodes"] == 45
+        again, _, resumed = open_run(store, merge({}, {**base, "episodes": 50}))
+        assert resumed and again.run_id == run.run_id and again.settings["episodes"] == 50
+        with pytest.raises(ConfigError, match="kappa=2.0"):
+            open_run(store, merge({}, {**base, "kappa": 0.0}))
+        other, _, resumed = open_run(store, merge({}, {**base, "kappa": 0.0, "resume": "new"}))
+        assert not resumed and other.run_id != run.run_id
+        with pytest.raises(ConfigError, match="no run"):
+            open_run(store, DaemonConfig(robot="r", resume="nope"))
+        with pytest.raises(ConfigError, match="lifting"):
+            open_run(store, DaemonConfig(robot="r", task="lifting", resume=run.run_id))
+    assert scenario_seed(3, 0) == scenario_seed(3, 0) != scenario_seed(3, 1) != scenario_seed(4, 1)
+
+
+# --------------------------------------------------------------------------- learning
+def test_kappa_change_mid_run_is_used_from_the_next_update(router, agent_factory, daemon_factory):
+    agent_factory("kap", delay_s=0.05)
+    daemon = daemon_factory("kap", episodes=16, kappa=0.0)
+    with LearnerClient(KeySpace("kap"), [router.endpoint], timeout_s=20) as client:
+        wait_until(lambda: client.state().episode_count >= 6)
+        client.set_kappa(3.0)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    with Store(daemon.config.db, readonly=True) as store:
+        run = daemon.run.run_id
+        change = store.latest_change(run, "kappa")
+        kappas = [u.kappa for u in store.updates(run)]
+    k = change.n_updates
+    assert change.value == 3.0 and 6 <= k < 16
+    assert kappas == [0.0] * k + [3.0] * (16 - k)
+
+
+def test_agent_absent_then_lost_mid_episode_then_back(router, daemon_factory, tmp_path):
+    out = io.StringIO()
+    daemon = daemon_factory("gone", episodes=6, out=out)
+    wait_until(lambda: "waiting for the agent" in out.getvalue())
+    assert daemon.state().status == "paused"
+    cmd = [sys.executable, str(HERE / "synthetic_agent.py"), "--robot", "gone", "--zenoh", router.endpoint]
+    slow = subprocess.Popen([*cmd, "--delay", "30"], stdout=subprocess.PIPE, text=True)
+    try:
+        with Store(daemon.config.db, readonly=True) as store:
+            wait_until(lambda: store.attempts(daemon.run.run_id, "pending"))
+            slow.send_signal(signal.SIGKILL)  # the agent dies mid-episode
+            wait_until(lambda: store.attempts(daemon.run.run_id, "lost"), timeout_s=10)
+    finally:
+        slow.kill()
+        slow.wait()
+    fast = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        assert daemon.finished.wait(60) and daemon.exit_code == 0
+    finally:
+        fast.terminate()
+        fast.wait(10)
+    with Store(daemon.config.db, readonly=True) as store:
+        attempts = store.attempts(daemon.run.run_id)
+    assert [a.status for a in attempts] == ["lost"] + ["ok"] * 6
+    assert attempts[0].theta == attempts[1].theta and attempts[0].seed == attempts[1].seed
+    assert attempts[1].episode_id.endswith(".00000.1")  # same request, new episode id
+    assert out.getvalue().count("waiting for the agent") == 2
+
+
+def test_failed_episodes_are_retried_then_the_run_fails(router, agent_factory, daemon_factory):
+    agent = agent_factory("bad", always_fault=True)
+    daemon = daemon_factory("bad", episodes=5, max_attempts=3)
+    assert daemon.finished.wait(30) and daemon.exit_code == EXIT_FAILED
+    with Store(daemon.config.db, readonly=True) as store:
+        attempts = store.attempts(daemon.run.run_id)
+        run = store.run(daemon.run.run_id)
+    assert [a.status for a in attempts] == ["fault_pdo_timeout"] * 3
+    assert [a.attempt for a in attempts] == [0, 1, 2] and {a.idx for a in attempts} == {0}
+    assert len({(a.theta, a.seed) for a in attempts}) == 1  # the same request each time
+    assert run.status == "failed" and "3 failed attempts" in run.detail
+    assert daemon.engine.n_observations == 0  # faults are never told to the learner
+    assert len(agent.requests) == 3
+
+
+# --------------------------------------------------------------------------- resume
+def _daemon_cmd(router, db: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "ersac_hil.cli", "daemon", "--robot", "res", "--zenoh", router.endpoint,
+            "--db", str(db), "--episodes", "14", "--seed", "21", "--kappa", "1.5",
+            "--backoff", "0.05,0.2", *extra]
+
+
+def _ok_history(db: Path):
+    with Store(db, readonly=True) as store:
+        (run,) = store.runs()
+        episodes = [(e.idx, e.theta, e.seed, dict(e.cost_terms), e.cost) for e in store.ok_episodes(run.run_id)]
+        updates = [(u.idx, u.theta_before, u.theta_after, u.J, u.r, u.kappa) for u in store.updates(run.run_id)]
+        return run, episodes, updates, store.attempts(run.run_id)
+
+
+def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path):
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    agent_factory("res", delay_s=0.1, fault_every=5)
+    reference = tmp_path / "ref.db"
+    done = subprocess.run(_daemon_cmd(router, reference), env=env, cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+    killed = tmp_path / "killed.db"
+    proc = subprocess.Popen(_daemon_cmd(router, killed), env=env, cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        _wait_for_store(killed, lambda s, run: len(s.ok_episodes(run)) >= 7 and s.attempts(run, "pending"))
+        proc.send_signal(signal.SIGKILL)  # mid-episode: an attempt is pending
+        proc.wait(10)
+    finally:
+        proc.kill()
+    first = proc.stdout.read()
+    assert "episode    7/14" in first
+    resumed = subprocess.run(_daemon_cmd(router, killed), env=env, cwd=ROOT, capture_output=True,
+                             text=True, timeout=120)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert "resumed at episode" in resumed.stdout and "interrupted attempt" in resumed.stdout
+
+    ref_run, ref_eps, ref_updates, _ = _ok_history(reference)
+    run, eps, updates, attempts = _ok_history(killed)
+    assert run.status == "finished" and run.seed == ref_run.seed
+    assert [e[0] for e in eps] == list(range(14))  # no episode lost, none duplicated
+    assert eps == ref_eps  # same requests (theta, seed), same costs
+    assert updates == ref_updates  # identical learning, bit for bit
+    interrupted = [a for a in attempts if a.status == "interrupted"]
+    assert len(interrupted) == 1
+    retry = [a for a in attempts if a.idx == interrupted[0].idx and a.status == "ok"][0]
+    assert (retry.theta, retry.seed) == (interrupted[0].theta, interrupted[0].seed)
+    assert retry.attempt > interrupted[0].attempt
+
+
+def _wait_for_store(db: Path, predicate, timeout_s: float = 60.0) -> None:  # noqa: ANN001
+    """Poll a store that another process is writing until ``predicate(store, run_id)``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if db.exists():
+            try:
+                with Store(db, readonly=True) as store:
+                    runs = store.runs()
+                    if runs and predicate(store, runs[0].run_id):
+                        return
+            except Exception:  # noqa: BLE001 - the writer may still be creating the schema
+                pass
+        time.sleep(0.01)
+    pytest.fail("the daemon did not get there in time")
