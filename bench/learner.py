@@ -1,0 +1,369 @@
+"""Benchmark of the ERSAC learner core (prints figures; not a test).
+
+    .venv/bin/python bench/learner.py            # full run (~10 min on 2 cores)
+    .venv/bin/python bench/learner.py --quick    # reduced run (< 1 min)
+
+1. Synthetic problems with known mean J(theta) and noise std r(theta) (1-D bracing-like,
+   2-D, 7-D).  For kappa in {-1, 0, 2}: episodes until F(theta) = J + kappa r at the
+   method's current policy is within 2 % of F's range (over the bounds) of the true optimum,
+   for ERSAC, risk-neutral SGD with a baseline, CMA-ES (each candidate evaluated `REPEATS`
+   times to estimate mean and std) and random search (same re-evaluation), same budget.
+2. The critic against the truth at ERSAC's final theta: r~/r and the slope of r~.
+3. VHGP fit/predict time for n = 25, 50, 100, 200; offline selection time in 1-D and 7-D.
+
+BLAS is pinned to one thread (threadpoolctl) in every process; seeds run in 2 worker
+processes (the machine has 2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from ersac_hil.critic import GP, VHGP, CriticConfig  # noqa: E402
+from ersac_hil.critic._blas import blas_description  # noqa: E402
+from ersac_hil.critic.datasets import goldberg  # noqa: E402
+from ersac_hil.learner import ERSAC  # noqa: E402
+
+KAPPAS = (-1.0, 0.0, 2.0)
+REPEATS = 4  # evaluations per candidate for CMA-ES and random search
+TOL = 0.02  # "within 2 % of the range"
+Fn = Callable[[np.ndarray], np.ndarray]
+
+
+# ----------------------------------------------------------------------------- problems
+@dataclass(frozen=True)
+class Problem:
+    name: str
+    bounds: np.ndarray  # (d, 2)
+    theta0: np.ndarray  # (d,)
+    J: Fn  # (m, d) -> (m,)
+    r: Fn  # (m, d) -> (m,)
+    budget: int
+    sigma: float
+    eta: float
+    epsilon: float
+    min_neighbours: int
+    min_observations: int
+    max_neighbours: int = 60
+
+    @property
+    def d(self) -> int:
+        return self.bounds.shape[0]
+
+    def F(self, X: np.ndarray, kappa: float) -> np.ndarray:
+        return self.J(X) + kappa * self.r(X)
+
+    def grad_r(self, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+        return np.array([(self.r((x + h * e)[None])[0] - self.r((x - h * e)[None])[0]) / (2 * h) for e in np.eye(self.d)])
+
+
+def _bracing_J(X: np.ndarray) -> np.ndarray:
+    t = X[:, 0]
+    return 3.0 - 2.4 * t + 1.5 * t * t
+
+
+def _bracing_r(X: np.ndarray) -> np.ndarray:
+    return 0.1 + 1.2 * X[:, 0] ** 2
+
+
+_A2, _C2 = np.array([0.9, 0.8]), np.array([0.0, 0.2])
+
+
+def _J2(X: np.ndarray) -> np.ndarray:
+    return 1.0 + 1.5 * ((X - _A2) ** 2).sum(1)
+
+
+def _r2(X: np.ndarray) -> np.ndarray:
+    return 0.05 + 0.8 * ((X - _C2) ** 2).sum(1)
+
+
+_A7 = np.array([1.5, 1.0, 2.0, 0.8, 1.2, 1.0, 0.6])
+_M7 = np.array([0.75, 0.8, 0.7, 0.85, 0.7, 0.75, 0.8])
+_B7 = np.array([0.25, 0.15, 0.3, 0.2, 0.1, 0.2, 0.15])
+_C7 = np.array([0.1, 0.2, 0.1, 0.3, 0.2, 0.1, 0.2])
+
+
+def _J7(X: np.ndarray) -> np.ndarray:
+    return 1.0 + (_A7 * (X - _M7) ** 2).sum(1)
+
+
+def _r7(X: np.ndarray) -> np.ndarray:
+    return 0.05 + (_B7 * (X - _C7) ** 2).sum(1)
+
+
+PROBLEMS = {
+    # J falls with theta on [0, 0.8] while the noise std rises (bracing: stiffer arms cost
+    # less on average but vary more).  kappa=0 -> 0.80, kappa=2 -> 0.31, kappa=-1 -> 1.
+    "1d-bracing": Problem("1d-bracing", np.array([[0.0, 1.0]]), np.array([0.05]), _bracing_J, _bracing_r,
+                          budget=150, sigma=0.1, eta=0.1, epsilon=0.3, min_neighbours=15, min_observations=8),
+    "2d": Problem("2d", np.array([[0.0, 1.0]] * 2), np.array([0.1, 0.1]), _J2, _r2,
+                  budget=200, sigma=0.1, eta=0.1, epsilon=0.35, min_neighbours=20, min_observations=10),
+    "7d": Problem("7d", np.array([[0.0, 1.0]] * 7), np.full(7, 0.3), _J7, _r7,
+                  budget=300, sigma=0.08, eta=0.1, epsilon=0.5, min_neighbours=30, min_observations=30),
+}
+
+
+def true_optimum(p: Problem, kappa: float) -> tuple[np.ndarray, float, float]:
+    """(theta*, F*, range of F over the bounds)."""
+    if p.d == 1:
+        g = np.linspace(0.0, 1.0, 20001)[:, None]
+        F = p.F(g, kappa)
+        return g[F.argmin()], float(F.min()), float(F.max() - F.min())
+    if p.d == 2:
+        t = np.linspace(0.0, 1.0, 801)
+        g = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2)
+        F = p.F(g, kappa)
+        return g[F.argmin()], float(F.min()), float(F.max() - F.min())
+    # 7-D: separable quadratics per coordinate, a_i + kappa b_i > 0 for every kappa used.
+    a, b = _A7 + kappa * _B7, _A7 * _M7 + kappa * _B7 * _C7
+    x = np.clip(b / a, 0.0, 1.0)
+    corners_lo = _A7 * _M7**2 + kappa * _B7 * _C7**2
+    corners_hi = _A7 * (1 - _M7) ** 2 + kappa * _B7 * (1 - _C7) ** 2
+    Fmax = 1.0 + kappa * 0.05 + np.maximum(corners_lo, corners_hi).sum()
+    Fs = float(p.F(x[None], kappa)[0])
+    return x, Fs, float(Fmax - Fs)
+
+
+# ----------------------------------------------------------------------------- methods
+def run_ersac(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
+    L = ERSAC(p.theta0, p.sigma, p.eta, kappa, p.epsilon, p.bounds, seed=seed,
+              min_observations=p.min_observations,
+              critic=CriticConfig(epsilon=p.epsilon, min_neighbours=p.min_neighbours, max_neighbours=p.max_neighbours))
+    noise = np.random.default_rng(10_000 + seed)
+    traj = np.empty((p.budget, p.d))
+    for e in range(p.budget):
+        x = L.ask()
+        L.tell(x, float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal()))
+        traj[e] = L.theta
+    th = L.theta
+    est = L.critic_estimate(th)
+    gr = p.grad_r(th)
+    info = {
+        "r_ratio": est.r / float(p.r(th[None])[0]),
+        "slope_ratio": float(est.grad_r @ gr / (gr @ gr)) if gr @ gr > 1e-12 else float("nan"),
+        "J_err": est.J - float(p.J(th[None])[0]),
+    }
+    return traj, info
+
+
+def run_sgd(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
+    """Risk-neutral: theta <- theta - alpha (J^ - b) z, b a running mean of J^ (alpha 0.5)."""
+    rng, noise = np.random.default_rng(seed), np.random.default_rng(10_000 + seed)
+    th, b = p.theta0.copy(), None
+    traj = np.empty((p.budget, p.d))
+    lo, hi = p.bounds[:, 0], p.bounds[:, 1]
+    for e in range(p.budget):
+        x = np.clip(th + p.sigma * rng.standard_normal(p.d), lo, hi)
+        j = float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal())
+        b = j if b is None else b
+        th = np.clip(th - 0.5 * (j - b) * (x - th), lo, hi)
+        b += 0.2 * (j - b)
+        traj[e] = th
+    return traj, {}
+
+
+def _estimate(p: Problem, x: np.ndarray, kappa: float, noise: np.random.Generator) -> float:
+    js = p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal(REPEATS)
+    return float(js.mean() + kappa * js.std(ddof=1))
+
+
+def run_cma(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
+    import cma
+
+    noise = np.random.default_rng(10_000 + seed)
+    traj = np.empty((p.budget, p.d))
+    lo, hi = p.bounds[:, 0], p.bounds[:, 1]
+    if p.d == 1:  # cma needs d >= 2: optimise (theta, dummy) and ignore the dummy
+        es = cma.CMAEvolutionStrategy([p.theta0[0], 0.5], 0.25, {"bounds": [[0, 0], [1, 1]], "seed": seed + 1, "verbose": -9})
+    else:
+        es = cma.CMAEvolutionStrategy(p.theta0.tolist(), 0.25, {"bounds": [lo.tolist(), hi.tolist()], "seed": seed + 1, "verbose": -9})
+    e, current = 0, p.theta0.copy()
+    while e < p.budget:
+        X = es.ask()
+        fit = []
+        for x in X:
+            xx = np.clip(np.asarray(x[: p.d]), lo, hi)
+            fit.append(_estimate(p, xx, kappa, noise))
+            n = min(REPEATS, p.budget - e)
+            traj[e : e + n] = current
+            e += n
+            if e >= p.budget:
+                break
+        if len(fit) < len(X):
+            break
+        es.tell(X, fit)
+        current = np.clip(np.asarray(es.mean[: p.d]), lo, hi)
+    return traj, {}
+
+
+def run_random(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
+    rng, noise = np.random.default_rng(seed), np.random.default_rng(10_000 + seed)
+    traj = np.empty((p.budget, p.d))
+    lo, hi = p.bounds[:, 0], p.bounds[:, 1]
+    best, best_x, e = math.inf, p.theta0.copy(), 0
+    cand = p.theta0.copy()
+    while e < p.budget:
+        n = min(REPEATS, p.budget - e)
+        if n == REPEATS:
+            f = _estimate(p, cand, kappa, noise)
+            if f < best:
+                best, best_x = f, cand
+        traj[e : e + n] = best_x
+        e += n
+        cand = rng.uniform(lo, hi)
+    return traj, {}
+
+
+METHODS = {"ERSAC": run_ersac, "SGD": run_sgd, "CMA-ES": run_cma, "random": run_random}
+
+
+def _job(args: tuple[str, str, float, int]) -> tuple[str, str, float, int, int | None, float, dict[str, float]]:
+    pname, mname, kappa, seed = args
+    with threadpool_limits(1, user_api="blas"):
+        p = PROBLEMS[pname]
+        traj, info = METHODS[mname](p, kappa, seed)
+        _, Fs, rng = true_optimum(p, kappa)
+        gap = (p.F(traj, kappa) - Fs) / rng
+        hit = np.flatnonzero(gap <= TOL)
+        return pname, mname, kappa, seed, (int(hit[0]) + 1 if hit.size else None), float(gap[-1]), info
+
+
+# ----------------------------------------------------------------------------- timing
+def _median_time(fn: Callable[[], object], reps: int) -> float:
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def timing(quick: bool) -> None:
+    print("\n## VHGP fit / predict time (1-D Goldberg-type data; median of reps)")
+    print(f"{'n':>5} {'GP fit':>9} {'VHGP cold':>10} {'evals':>6} {'VHGP warm':>10} {'evals':>6} {'predict 100':>12}")
+    reps = 2 if quick else 5
+    with threadpool_limits(1, user_api="blas"):
+        for n in (25, 50, 100, 200):
+            data = goldberg(np.random.default_rng(n), n=n + 1)
+            X, y = data.X, data.y
+            t_gp = _median_time(lambda: GP().fit(X[:n], y[:n]), reps)
+            cold = VHGP()
+            t_cold = _median_time(lambda: cold.fit(X[:n], y[:n]), reps)
+            ev_cold = cold.n_evaluations
+            prev = VHGP().fit(X[:n], y[:n]).params
+            # the critic's case: one observation replaced (lambda kept for shared points)
+            ws = type(prev)(np.concatenate([prev.log_lambda[1:], [math.log(0.5)]]), prev.kernel)
+            warm = VHGP()
+            t_warm = _median_time(lambda: warm.fit(X[1:], y[1:], warm_start=ws), reps)
+            Xs = np.linspace(0, 1, 100)[:, None]
+            t_pred = _median_time(lambda: cold.predict(Xs), 20)
+            print(f"{n:5d} {t_gp*1e3:7.1f}ms {t_cold*1e3:8.1f}ms {ev_cold:6d} {t_warm*1e3:8.1f}ms {warm.n_evaluations:6d} {t_pred*1e3:10.2f}ms")
+
+    print("\n## Offline selection time (after an ERSAC run; first call fits the selection model)")
+    with threadpool_limits(1, user_api="blas"):
+        for pname in ("1d-bracing", "7d"):
+            p = PROBLEMS[pname]
+            n_ep = 60 if quick else p.budget
+            L = ERSAC(p.theta0, p.sigma, p.eta, 2.0, p.epsilon, p.bounds, seed=0, min_observations=p.min_observations,
+                      critic=CriticConfig(epsilon=p.epsilon, min_neighbours=p.min_neighbours, max_neighbours=p.max_neighbours))
+            noise = np.random.default_rng(1)
+            for _ in range(n_ep):
+                x = L.ask()
+                L.tell(x, float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal()))
+            t = time.perf_counter()
+            s = L.select(2.0)
+            t_first = time.perf_counter() - t
+            t_again = _median_time(lambda: L.select(2.0), 3)
+            t_other = _median_time(lambda: L.select(0.0), 3)
+            ts, Fs, rng = true_optimum(p, 2.0)
+            gap = (float(p.F(s.theta[None], 2.0)[0]) - Fs) / rng
+            print(f"{pname:>10}: {s.n_points} points, {s.n_starts} starts, {s.n_evaluations} SLSQP evals; "
+                  f"first call {t_first*1e3:.0f} ms (incl. model fit), cached model {t_again*1e3:.0f} ms, "
+                  f"other kappa {t_other*1e3:.0f} ms; true F gap of the selection {gap*100:.1f} % of range, "
+                  f"distance to data {s.distance_to_data:.3f} <= R {s.radius:.3f}")
+
+
+# ----------------------------------------------------------------------------- main
+def _fmt(hits: list[int | None], budget: int) -> str:
+    ok = [h for h in hits if h is not None]
+    if len(ok) * 2 <= len(hits):
+        return f"  >{budget} ({len(ok)}/{len(hits)})"
+    arr = np.array([h if h is not None else np.inf for h in hits], dtype=float)
+    q1, med, q3 = np.percentile(arr, [25, 50, 75])
+    q3s = f"{q3:.0f}" if np.isfinite(q3) else ">"
+    return f"{med:4.0f} [{q1:.0f}-{q3s}] {len(ok)}/{len(hits)}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="reduced run (< 1 min)")
+    ap.add_argument("--seeds", type=int, default=None)
+    args = ap.parse_args()
+    seeds = args.seeds or (4 if args.quick else 20)
+    problems = ["1d-bracing", "2d"] if args.quick else list(PROBLEMS)
+    t0 = time.perf_counter()
+    with threadpool_limits(1, user_api="blas"):
+        print(f"# ERSAC learner benchmark ({'quick' if args.quick else 'full'}; {seeds} seeds)")
+        print(f"BLAS pinned to 1 thread via threadpoolctl in every process: {blas_description()}")
+        print(f"{os.cpu_count()} CPUs; seeds run in 2 worker processes")
+    jobs = [(pn, m, k, s) for pn in problems for k in KAPPAS for m in METHODS for s in range(seeds)]
+    with mp.get_context("fork").Pool(2) as pool:
+        results = pool.map(_job, jobs, chunksize=1)
+
+    print(f"\n## Episodes until F(theta) is within {TOL:.0%} of F's range of the optimum "
+          f"(median [IQR] reached/seeds; CMA-ES and random search evaluate each candidate {REPEATS}x)")
+    head = f"{'problem':>10} {'kappa':>5} {'theta*':>18} {'budget':>6} | " + " | ".join(f"{m:^20}" for m in METHODS)
+    print(head)
+    print("-" * len(head))
+    for pn in problems:
+        p = PROBLEMS[pn]
+        for k in KAPPAS:
+            ts, _, _ = true_optimum(p, k)
+            tstr = np.array2string(ts, precision=2, max_line_width=200) if p.d <= 2 else f"(7-D) {ts.mean():.2f} avg"
+            cells = []
+            for m in METHODS:
+                hits = [h for (a, b, c, _, h, _, _) in results if a == pn and b == m and c == k]
+                cells.append(f"{_fmt(hits, p.budget):^20}")
+            print(f"{pn:>10} {k:5.0f} {tstr:>18} {p.budget:6d} | " + " | ".join(cells))
+    print("\n## Final gap (F(theta_T) - F*) / range at the end of the budget, median over seeds")
+    print(f"{'problem':>10} {'kappa':>5} | " + " | ".join(f"{m:^9}" for m in METHODS))
+    for pn in problems:
+        for k in KAPPAS:
+            cells = []
+            for m in METHODS:
+                gaps = [g for (a, b, c, _, _, g, _) in results if a == pn and b == m and c == k]
+                cells.append(f"{np.median(gaps)*100:7.1f}% ")
+            print(f"{pn:>10} {k:5.0f} | " + " | ".join(cells))
+
+    print("\n## The critic against the truth at ERSAC's final theta (median [IQR] over seeds)")
+    print("r~/r: predictive noise std vs true std; slope ratio: (grad r~ . grad r) / |grad r|^2 (1 = right slope)")
+    for pn in problems:
+        for k in KAPPAS:
+            infos = [i for (a, b, c, _, _, _, i) in results if a == pn and b == "ERSAC" and c == k]
+            rr = np.array([i["r_ratio"] for i in infos])
+            sr = np.array([i["slope_ratio"] for i in infos])
+            je = np.array([i["J_err"] for i in infos])
+            q = lambda v: f"{np.nanmedian(v):5.2f} [{np.nanpercentile(v, 25):.2f}, {np.nanpercentile(v, 75):.2f}]"  # noqa: E731
+            print(f"{pn:>10} kappa={k:4.0f}: r~/r {q(rr)}   slope ratio {q(sr)}   J~-J {q(je)}")
+
+    timing(args.quick)
+    print(f"\ntotal wall time {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,69 @@
+"""Synthetic heteroscedastic regression sets used to validate the VHGP (NOTES.md).
+
+Each generator returns a `HeteroscedasticSet` of n points drawn with the given numpy
+Generator, plus the true mean and noise std as functions (for recovery checks).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+Fn = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class HeteroscedasticSet:
+    """x (n,), y (n,), mean(x) and std(x) the true functions, domain (lo, hi)."""
+
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    mean: Fn
+    std: Fn
+    domain: tuple[float, float]
+
+    @property
+    def X(self) -> np.ndarray:
+        """Inputs as a column, (n, 1)."""
+        return self.x[:, None]
+
+
+def _make(name: str, n: int, rng: np.random.Generator, domain: tuple[float, float], mean: Fn, std: Fn) -> HeteroscedasticSet:
+    x = rng.uniform(domain[0], domain[1], size=n)
+    y = mean(x) + std(x) * rng.standard_normal(n)
+    return HeteroscedasticSet(name, x, y, mean, std, domain)
+
+
+def goldberg(rng: np.random.Generator, n: int = 60) -> HeteroscedasticSet:
+    """x ~ U(0, 1), mean 2 sin(2 pi x), std x + 0.5."""
+    return _make("goldberg", n, rng, (0.0, 1.0), lambda x: 2.0 * np.sin(2.0 * np.pi * x), lambda x: x + 0.5)
+
+
+def williams(rng: np.random.Generator, n: int = 200) -> HeteroscedasticSet:
+    """x ~ U(0, pi), mean sin(2.5x) sin(1.5x), std 0.01 + 0.25 (1 - sin(2.5x))^2."""
+    return _make(
+        "williams",
+        n,
+        rng,
+        (0.0, float(np.pi)),
+        lambda x: np.sin(2.5 * x) * np.sin(1.5 * x),
+        lambda x: 0.01 + 0.25 * (1.0 - np.sin(2.5 * x)) ** 2,
+    )
+
+
+def yuan(rng: np.random.Generator, n: int = 200) -> HeteroscedasticSet:
+    """x ~ U(0, 1), mean 2 (exp(-30 (x - 0.25)^2) + sin(2 pi x^2)) - 2, std exp(sin(2 pi x))."""
+    return _make(
+        "yuan",
+        n,
+        rng,
+        (0.0, 1.0),
+        lambda x: 2.0 * (np.exp(-30.0 * (x - 0.25) ** 2) + np.sin(2.0 * np.pi * x**2)) - 2.0,
+        lambda x: np.exp(np.sin(2.0 * np.pi * x)),
+    )
+
+
+ALL: dict[str, Callable[..., HeteroscedasticSet]] = {"goldberg": goldberg, "williams": williams, "yuan": yuan}

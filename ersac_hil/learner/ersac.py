@@ -1,0 +1,466 @@
+"""Episodic Risk-Sensitive Actor-Critic (Kuindersma, Grupen & Barto 2012, Algorithm 1).
+
+Ask/tell loop, one episode per ask:
+
+    ask():   z ~ N(0, diag(sigma^2)) (per-parameter sigma: the natural-gradient variant),
+             returns executed = clip(theta + z, bounds).
+    tell(executed, J^):
+             store (executed, J^); fit the local VHGP critic on the neighbourhood of theta
+             (which now includes the new observation);
+             z      = executed - theta            (the realised, clipped perturbation)
+             delta  = J^ - J~(theta) + kappa (r~(theta + z) - r~(theta))
+             alpha  = clip(eta / r~(theta), lr_range)
+             theta <- clip(theta - alpha delta z, bounds)
+
+r~ is the critic's predictive noise std sqrt(exp(g_mean + g_var / 2)) (critic/local.py).
+Until `min_observations` observations exist (default: the critic's min_neighbours), tell()
+only stores the observation (a warm-up Update with step 0).
+
+Pending ask: ask() draws z once; until tell() it returns the same executed parameters (no
+new draw).  get_state() includes the pending parameters, so a resumed learner re-issues
+exactly the same ask.  tell() must be given those parameters (within 1e-9 of the bounds'
+width per coordinate); the learner then uses its own copy, bit for bit.
+
+Resume: get_state() is a JSON-able dict (RNG state, theta, kappa, pending ask, counters,
+the last critic fit's VHGP coordinates, a digest of the observations).  ERSAC.from_state()
+rebuilds the learner without observations; feed the stored episodes back with observe() in
+their original order, then continue; the first tell() checks the digest and continues
+with updates bit-identical to an uninterrupted run.
+
+Every public method validates its inputs first and raises a LearnerError subclass without
+changing any state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import numbers
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..critic import CriticConfig, CriticError, CriticEstimate, LocalCritic, LocalFit
+from ..critic._blas import single_threaded_blas
+from .costs import CostWeights, ObservationStore
+from .errors import (
+    InsufficientDataError,
+    InvalidInputError,
+    InvalidKappaError,
+    LearnerError,
+    NoPendingAskError,
+    OutOfBoundsError,
+    PendingMismatchError,
+    StateError,
+)
+
+STATE_FORMAT = "ersac-hil/ersac-state"
+STATE_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Update:
+    """Result of one tell().  Arrays have shape (d,).
+
+    J_tilde, r_tilde, r_tilde_perturbed, td_error are None for warm-up tells (no update).
+    step_size is alpha = clip(eta / r~(theta), lr_range) (0 in warm-up)."""
+
+    index: int
+    theta_before: np.ndarray
+    theta_after: np.ndarray
+    executed: np.ndarray
+    z: np.ndarray
+    cost: float
+    J_tilde: float | None
+    r_tilde: float | None
+    r_tilde_perturbed: float | None
+    td_error: float | None
+    kappa: float
+    step_size: float
+    warmup: bool
+    clipped: bool
+    n_neighbours: int
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = [float(x) for x in v] if isinstance(v, np.ndarray) else v
+        return out
+
+
+def _real(value: object, what: str, exc: type[LearnerError] = InvalidInputError) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise exc(f"{what} must be a real number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise exc(f"{what} must be finite, got {v}")
+    return v
+
+
+def _rng_state_to_json(rng: np.random.Generator) -> dict[str, Any]:
+    st = rng.bit_generator.state
+    if st.get("bit_generator") != "PCG64":  # pragma: no cover - we only create PCG64
+        raise StateError("only PCG64 generators can be saved")
+    return {
+        "bit_generator": "PCG64",
+        "state": str(st["state"]["state"]),
+        "inc": str(st["state"]["inc"]),
+        "has_uint32": int(st["has_uint32"]),
+        "uinteger": int(st["uinteger"]),
+    }
+
+
+def _rng_from_json(data: Mapping[str, Any]) -> np.random.Generator:
+    try:
+        if data["bit_generator"] != "PCG64":
+            raise StateError("rng.bit_generator must be PCG64")
+        bg = np.random.PCG64()
+        bg.state = {
+            "bit_generator": "PCG64",
+            "state": {"state": int(data["state"]), "inc": int(data["inc"])},
+            "has_uint32": int(data["has_uint32"]),
+            "uinteger": int(data["uinteger"]),
+        }
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StateError(f"invalid rng state: {exc}") from exc
+    return np.random.Generator(bg)
+
+
+class ERSAC:
+    """ERSAC learner with an ask/tell interface (see module doc)."""
+
+    def __init__(
+        self,
+        theta0: object,
+        sigma: object,
+        eta: float,
+        kappa: float,
+        epsilon: float,
+        bounds: object,
+        lr_range: tuple[float, float] = (0.01, 0.5),
+        seed: int | None = None,
+        *,
+        weights: CostWeights | None = None,
+        critic: CriticConfig | None = None,
+        min_observations: int | None = None,
+    ) -> None:
+        b = np.asarray(bounds, dtype=float)
+        if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
+            raise InvalidInputError(f"bounds must have shape (d, 2), got {b.shape}")
+        if not np.all(np.isfinite(b)) or not np.all(b[:, 0] < b[:, 1]):
+            raise InvalidInputError("bounds must be finite with lo < hi")
+        d = b.shape[0]
+        self._lo, self._hi = b[:, 0].copy(), b[:, 1].copy()
+        theta = self._check_params(theta0, "theta0")
+        s = np.asarray(sigma, dtype=float)
+        if s.ndim == 0:
+            s = np.full(d, float(s))
+        if s.shape != (d,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
+            raise InvalidInputError(f"sigma must be a positive scalar or shape ({d},)")
+        self._eta = _real(eta, "eta")
+        if self._eta <= 0:
+            raise InvalidInputError("eta must be > 0")
+        lr = (_real(lr_range[0], "lr_range[0]"), _real(lr_range[1], "lr_range[1]"))
+        if not (0 < lr[0] <= lr[1]):
+            raise InvalidInputError("lr_range must satisfy 0 < lo <= hi")
+        eps = _real(epsilon, "epsilon")
+        try:
+            cfg = CriticConfig(epsilon=eps) if critic is None else dataclasses.replace(critic, epsilon=eps)
+        except CriticError as exc:
+            raise InvalidInputError(str(exc)) from exc
+        if weights is not None and not isinstance(weights, CostWeights):
+            raise InvalidInputError("weights must be a CostWeights")
+        m = cfg.min_neighbours if min_observations is None else min_observations
+        if not isinstance(m, numbers.Integral) or m < 3:
+            raise InvalidInputError("min_observations must be an integer >= 3")
+        if seed is not None and (not isinstance(seed, numbers.Integral) or seed < 0):
+            raise InvalidInputError("seed must be a non-negative integer or None")
+
+        self._d = d
+        self._theta = theta
+        self._sigma = s
+        self._kappa = _real(kappa, "kappa", InvalidKappaError)
+        self._lr = lr
+        self._min_obs = int(m)
+        self._rng = np.random.Generator(np.random.PCG64(seed))
+        self._store = ObservationStore(d, weights)
+        self._critic = LocalCritic(self._store, cfg)
+        self._pending: np.ndarray | None = None
+        self._n_updates = 0
+        self._last_fit: LocalFit | None = None
+        # resume bookkeeping (from_state)
+        self._expect_obs = 0
+        self._expect_digest: str | None = None
+        self._fit_record: dict[str, Any] | None = None
+
+    # ------------------------------------------------------------------ validation
+    def _check_params(self, x: object, what: str) -> np.ndarray:
+        xa = np.asarray(x, dtype=float)
+        d = self._lo.shape[0]
+        if xa.shape != (d,):
+            raise InvalidInputError(f"{what} must have shape ({d},), got {xa.shape}")
+        if not np.all(np.isfinite(xa)):
+            raise InvalidInputError(f"{what} must be finite")
+        if np.any(xa < self._lo) or np.any(xa > self._hi):
+            raise OutOfBoundsError(f"{what} {xa.tolist()} outside bounds lo={self._lo.tolist()} hi={self._hi.tolist()}")
+        return xa.copy()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def theta(self) -> np.ndarray:
+        """Current policy parameters, (d,) (a copy)."""
+        return self._theta.copy()
+
+    @property
+    def kappa(self) -> float:
+        return self._kappa
+
+    @kappa.setter
+    def kappa(self, value: float) -> None:
+        """Risk sensitivity; takes effect at the next tell()."""
+        self._kappa = _real(value, "kappa", InvalidKappaError)
+
+    @property
+    def dim(self) -> int:
+        return self._d
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.column_stack([self._lo, self._hi])
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return self._sigma.copy()
+
+    @property
+    def pending(self) -> np.ndarray | None:
+        """Parameters of the ask() awaiting tell(), or None."""
+        return None if self._pending is None else self._pending.copy()
+
+    @property
+    def n_updates(self) -> int:
+        """Number of tell() calls so far (warm-up tells included)."""
+        return self._n_updates
+
+    @property
+    def n_observations(self) -> int:
+        return len(self._store)
+
+    @property
+    def store(self) -> ObservationStore:
+        """The observations (read-only views; add through observe/tell)."""
+        return self._store
+
+    @property
+    def weights(self) -> CostWeights:
+        return self._store.weights
+
+    @property
+    def critic_config(self) -> CriticConfig:
+        return self._critic.config
+
+    @property
+    def local_critic(self) -> LocalCritic:
+        return self._critic
+
+    # ------------------------------------------------------------------ ask / tell
+    def ask(self) -> np.ndarray:
+        """Parameters to execute next: clip(theta + z, bounds), (d,).  Idempotent until tell()."""
+        if self._pending is None:
+            z = self._rng.standard_normal(self._d) * self._sigma
+            self._pending = np.clip(self._theta + z, self._lo, self._hi)
+        return self._pending.copy()
+
+    def _check_executed(self, executed: object) -> np.ndarray:
+        if self._pending is None:
+            raise NoPendingAskError("tell() without a pending ask()")
+        x = self._check_params(executed, "executed")
+        tol = 1e-9 * (self._hi - self._lo)
+        if np.any(np.abs(x - self._pending) > tol):
+            raise PendingMismatchError(f"executed {x.tolist()} differs from the pending ask {self._pending.tolist()}")
+        return self._pending.copy()
+
+    def _check_resume(self) -> None:
+        n = len(self._store)
+        if n < self._expect_obs:
+            raise StateError(f"resume incomplete: state was saved with {self._expect_obs} observations, {n} observed so far")
+        if self._expect_digest is not None:
+            if self._digest(self._expect_obs) != self._expect_digest:
+                raise StateError("the observed episodes differ from those the state was saved with")
+            self._expect_digest = None
+        if self._fit_record is not None:
+            try:
+                self._last_fit = self._critic.restore(self._fit_record)
+            except CriticError as exc:
+                raise StateError(f"cannot restore the critic fit: {exc}") from exc
+            self._fit_record = None
+
+    def tell(self, executed: object, cost: Mapping[str, float] | float) -> Update:
+        """Report the cost of the pending ask and update theta (see module doc).
+
+        cost: a number (single-term weights) or a mapping term name -> value."""
+        x = self._check_executed(executed)
+        self._store.prepare(x, cost)  # validates the cost before any change
+        self._check_resume()
+        theta = self._theta.copy()
+        z = x - theta
+        index = self._store.add(x, cost)
+        J_hat = float(self._store.costs[index])
+        try:
+            if len(self._store) < self._min_obs:
+                upd = Update(
+                    self._n_updates, theta, theta.copy(), x, z, J_hat, None, None, None, None,
+                    self._kappa, 0.0, True, False, 0,
+                )
+                new_theta, fit = theta, self._last_fit
+            else:
+                upd, new_theta, fit = self._update(theta, x, z, J_hat)
+        except BaseException:
+            self._store.truncate(index)
+            raise
+        self._theta = new_theta
+        self._last_fit = fit
+        self._pending = None
+        self._n_updates += 1
+        return upd
+
+    def _update_fit(self, theta: np.ndarray) -> LocalFit:
+        ids = self._critic.neighbourhood(theta)
+        last = self._last_fit
+        if last is not None and np.array_equal(last.ids, ids) and np.array_equal(last.model.y, self._store.costs[ids]):
+            return last
+        every = self._critic.config.cold_every
+        also_cold = every > 0 and self._n_updates % every == 0
+        return self._critic.fit_ids(ids, warm_start=last, use_cache=False, also_cold=also_cold)
+
+    def _update(self, theta: np.ndarray, x: np.ndarray, z: np.ndarray, J_hat: float) -> tuple[Update, np.ndarray, LocalFit]:
+        with single_threaded_blas():
+            try:
+                fit = self._update_fit(theta)
+            except CriticError as exc:
+                raise InsufficientDataError(f"critic fit failed: {exc}") from exc
+            J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
+            _, r_p, _ = (float(v[0]) for v in fit.estimate_many(x[None, :]))
+        kappa = self._kappa
+        delta = J_hat - J_t + kappa * (r_p - r_t)
+        alpha = float(np.clip(self._eta / r_t, self._lr[0], self._lr[1])) if r_t > 0 else self._lr[1]
+        raw = theta - alpha * delta * z
+        new_theta = np.clip(raw, self._lo, self._hi)
+        upd = Update(
+            self._n_updates, theta, new_theta.copy(), x, z, J_hat, J_t, r_t, r_p, delta,
+            kappa, alpha, False, bool(np.any(raw != new_theta)), int(fit.ids.size),
+        )
+        return upd, new_theta, fit
+
+    def observe(self, executed: object, cost: Mapping[str, float] | float) -> int:
+        """Add a past observation without an update (rebuilding the critic); returns its index."""
+        x = self._check_params(executed, "executed")
+        return self._store.add(x, cost)
+
+    def reweight(self, weights: CostWeights) -> None:
+        """New cost weights: every stored cost is recomputed from its terms."""
+        self._store.reweight(weights)
+
+    # ------------------------------------------------------------------ critic queries
+    def critic_estimate(self, theta: object, kappa: float | None = None) -> CriticEstimate:
+        """J~, r~, F~ and gradients at theta (d,) from its neighbourhood's VHGP."""
+        th = self._check_params(theta, "theta")
+        k = self._kappa if kappa is None else _real(kappa, "kappa", InvalidKappaError)
+        if len(self._store) < 3:
+            raise InsufficientDataError(f"the critic needs at least 3 observations, has {len(self._store)}")
+        self._check_resume()
+        with single_threaded_blas():
+            try:
+                return self._critic.fit(th, warm_start=self._last_fit).estimate(th, k)
+            except CriticError as exc:
+                raise InsufficientDataError(f"critic fit failed: {exc}") from exc
+
+    def critic(self, theta: object) -> tuple[float, float]:
+        """(J~(theta), r~(theta))."""
+        e = self.critic_estimate(theta)
+        return e.J, e.r
+
+    def select(self, kappa: float | None = None, **options: Any) -> "Selection":
+        """Offline policy selection for kappa (default: the current kappa); no episodes.
+        options: fields of SelectionConfig (radius, n_starts, max_points, ...)."""
+        from .selection import SelectionConfig, select_policy
+
+        k = self._kappa if kappa is None else _real(kappa, "kappa", InvalidKappaError)
+        self._check_resume()
+        if "radius" not in options:
+            options["radius"] = 0.5 * self._critic.config.epsilon
+        try:
+            cfg = SelectionConfig(**options)
+        except TypeError as exc:
+            raise InvalidInputError(str(exc)) from exc
+        return select_policy(self._critic, self.bounds, k, anchor=self._theta, config=cfg, warm_start=self._last_fit)
+
+    # ------------------------------------------------------------------ state
+    def _digest(self, n: int) -> str:
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self._store.points[:n]).tobytes())
+        h.update(np.ascontiguousarray(self._store.terms[:n]).tobytes())
+        return h.hexdigest()
+
+    def get_state(self) -> dict[str, Any]:
+        """JSON-able snapshot (plain dicts, lists, str, int, float, None); observations
+        themselves are not included (see module doc)."""
+        fit = self._last_fit.to_dict() if self._last_fit is not None else self._fit_record
+        return {
+            "format": STATE_FORMAT,
+            "version": STATE_VERSION,
+            "theta": [float(v) for v in self._theta],
+            "sigma": [float(v) for v in self._sigma],
+            "bounds": [[float(a), float(b)] for a, b in zip(self._lo, self._hi)],
+            "eta": self._eta,
+            "kappa": self._kappa,
+            "lr_range": [self._lr[0], self._lr[1]],
+            "min_observations": self._min_obs,
+            "critic": self._critic.config.to_dict(),
+            "weights": self._store.weights.to_dict(),
+            "rng": _rng_state_to_json(self._rng),
+            "pending": None if self._pending is None else [float(v) for v in self._pending],
+            "n_updates": self._n_updates,
+            "n_observations": max(len(self._store), self._expect_obs),
+            "observations_sha256": self._digest(len(self._store)) if len(self._store) >= self._expect_obs else self._expect_digest,
+            "last_fit": fit,
+        }
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, Any]) -> "ERSAC":
+        """Rebuild a learner from get_state(); then observe() the stored episodes in order."""
+        try:
+            if state.get("format") != STATE_FORMAT or state.get("version") != STATE_VERSION:
+                raise StateError(f"not an {STATE_FORMAT} v{STATE_VERSION} state")
+            critic = CriticConfig.from_dict(state["critic"])
+            learner = cls(
+                state["theta"],
+                state["sigma"],
+                state["eta"],
+                state["kappa"],
+                critic.epsilon,
+                state["bounds"],
+                lr_range=tuple(state["lr_range"]),
+                weights=CostWeights(state["weights"]),
+                critic=critic,
+                min_observations=state["min_observations"],
+            )
+            learner._rng = _rng_from_json(state["rng"])
+            if state["pending"] is not None:
+                learner._pending = learner._check_params(state["pending"], "pending")
+            learner._n_updates = int(state["n_updates"])
+            learner._expect_obs = int(state["n_observations"])
+            learner._expect_digest = state["observations_sha256"]
+            learner._fit_record = state["last_fit"]
+        except StateError:
+            raise
+        except (LearnerError, CriticError, KeyError, TypeError, ValueError) as exc:
+            raise StateError(f"invalid learner state: {exc}") from exc
+        return learner
+
+
+from .selection import Selection  # noqa: E402  (type of ERSAC.select, avoids an import cycle)
