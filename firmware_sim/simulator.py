@@ -13,7 +13,6 @@ Determinism: the same scenario, seed and command sequence give bit-identical tel
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -377,7 +376,8 @@ class Simulator:
         ``"torso"``: positions/velocities shape (n_knots, n_axes of the board)) or on one axis
         (positions/velocities shape (n_knots,)). Times in s from the start command."""
         if target in BOARDS and target != "wheels":
-            return self.controller(target).load_spline(times, positions, velocities)  # type: ignore[attr-defined]
+            board = self.controller(target)
+            return board.load_spline(times, positions, velocities)  # type: ignore[attr-defined]
         return self._joint_board(target).load_spline(times, positions, velocities, axes=(target,))
 
     def start_spline(self, *targets: str) -> None:

@@ -7,7 +7,7 @@ import math
 import mujoco
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_sim.controllers import (
@@ -71,7 +71,8 @@ def test_out_of_range_stiffness_is_refused_and_changes_nothing(shared, axis, sti
      "shoulder_left.position_limit_min"),
     (lambda s: s.controller("arm_left").set_position_limits("shoulder_left", 1.0, 0.5),
      "shoulder_left.position_limit_max"),
-    (lambda s: s.controller("arm_right").set_velocity_limit("elbow_right", 31.0), "elbow_right.velocity_limit"),
+    (lambda s: s.controller("arm_right").set_velocity_limit("elbow_right", 31.0),
+     "elbow_right.velocity_limit"),
     (lambda s: s.controller("wheels").set_current_limit("wheel_left", 10.5), "wheel_left.current_limit"),
     (lambda s: s.controller("torso").set_overcurrent_time(0.0), "torso.overcurrent_time"),
     (lambda s: s.set_wheel_torque(math.nan, 0.0), "wheel_left.torque"),

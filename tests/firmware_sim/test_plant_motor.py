@@ -32,7 +32,8 @@ def test_wheel_current_and_voltage_follow_the_motor_model(sim):
         right = sim.axis("wheel_right")
         assert abs(right.current) < 1e-9
     assert speeds[-1] > 1.0                                  # the wheel spins up forward ...
-    assert sim.axis("wheel_left").voltage > 2 * sim.axis("wheel_left").current * p.resistance  # ... and back-EMF dominates
+    a = sim.axis("wheel_left")
+    assert a.voltage > 2 * a.current * p.resistance         # ... and back-EMF dominates
 
 
 def test_current_saturates_at_the_limit_and_over_current_latches_once(sim):

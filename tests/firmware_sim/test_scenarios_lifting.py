@@ -58,8 +58,9 @@ def test_bottle_starts_near_the_ground_in_the_hands(sim):
     t = sim.truth
     assert 0.1 < t.bottle_height < 0.25
     assert t.bottle_com[2] == pytest.approx(t.bottle_height - 0.006, abs=0.002)  # liquid low
-    hands = sim.physics.data.site_xpos[[sim.physics.site_id("hand_left"), sim.physics.site_id("hand_right")]]
-    assert np.allclose(hands.mean(axis=0), sim.physics.data.xpos[sim.physics.body_id("bottle/shell")], atol=1e-6)
+    phys = sim.physics
+    hands = phys.data.site_xpos[[phys.site_id("hand_left"), phys.site_id("hand_right")]]
+    assert np.allclose(hands.mean(axis=0), phys.data.xpos[phys.body_id("bottle/shell")], atol=1e-6)
     assert not t.bottle_dropped
 
 
