@@ -201,12 +201,13 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         bus = ["--bus-interface", "remote", "--bus-channel", channel]
         sim = launch("sim", _cli("sim", *bus, "--seed", str(config.seed)))
         agent = launch("agent", _cli("agent", "--robot", config.robot, *bus, "--zenoh", endpoint))
-        say(f"demo: router {endpoint}, CAN hub {channel}, simulator pid {sim.pid}, agent pid {agent.pid}")
+        say(f"demo: router {endpoint}, CAN hub {channel}")
         daemon = launch("daemon", _cli(
             "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
             "--episodes", str(config.episodes), "--seed", str(config.seed), "--zenoh", endpoint,
             "--db", str(db), "--new", "--agent-wait", "120", *config.extra_daemon_args),
             echo=lambda line: say(f"  {line}"))
+        say("demo: children " + " ".join(f"{c.name}={c.pid}" for c in children))
         while daemon.alive() and not stop.is_set():
             for child in (sim, agent):
                 if not child.alive():
