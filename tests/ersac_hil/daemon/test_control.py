@@ -370,3 +370,39 @@ def test_control_plane_serves_while_learning(router, agent_factory, daemon_facto
     thread.start()
     thread.join(60)
     assert len(answers) >= 5 and answers == sorted(answers)
+
+
+# --------------------------------------------------------------------------- CLI clients
+def _cli(router, capsys, *argv: str) -> tuple[int, str, str]:
+    from ersac_hil.cli import main
+    code = main([*argv[:1], *argv[1:], "--robot", ROBOT, "--zenoh", router.endpoint, "--timeout", "20"])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_cli_clients(learned, router, capsys):
+    code, out, _ = _cli(router, capsys, "state")
+    assert code == 0 and f"run       {learned['daemon'].run.run_id}" in out
+    code, out, _ = _cli(router, capsys, "state", "--json")
+    assert code == 0 and LearnerState.from_json(out.strip()).episode_count == EPISODES
+    code, out, _ = _cli(router, capsys, "kappa", "set", "0.75")
+    assert code == 0 and "kappa     0.75" in out
+    code, out, _ = _cli(router, capsys, "kappa", "get")
+    assert code == 0 and out.strip() == "0.75"
+    code, out, _ = _cli(router, capsys, "critic", "--theta", "0.3", "--theta", "0.6", "--json")
+    reply = CriticReply.from_json(out.strip())
+    assert code == 0 and [p.theta for p in reply.points] == [(0.3,), (0.6,)] and reply.kappa == 0.75
+    code, out, _ = _cli(router, capsys, "select", "--kappa", "1", "--weight", "damage=15")
+    assert code == 0 and "selected theta" in out and "adopted False" in out
+    code, out, _ = _cli(router, capsys, "weights", "get")
+    assert code == 0 and json.loads(out)["damage"] == 10.0
+    # refusals: by the learner (exit 1) and locally (exit 2); nothing changes
+    before = _snapshot(learned)
+    code, _, err = _cli(router, capsys, "critic", "--theta", "1.5")
+    assert code == 1 and "invalid_request" in err and "theta[0][0]" in err
+    code, _, err = _cli(router, capsys, "kappa", "set", "12")
+    assert code == 2 and "kappa" in err
+    code, _, err = _cli(router, capsys, "weights", "set", "gravity=1")
+    assert code == 1 and "gravity" in err
+    assert _snapshot(learned) == before
+    _cli(router, capsys, "kappa", "set", "1")

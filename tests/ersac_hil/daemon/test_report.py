@@ -1,0 +1,44 @@
+"""Reports from a real store written by a daemon run against the synthetic agent."""
+from __future__ import annotations
+
+import json
+import statistics
+
+import pytest
+
+from ersac_hil.cli import main
+from ersac_hil.daemon.clients import LearnerClient
+from ersac_hil.daemon.report import write_report
+from ersac_hil.daemon.store import Store
+from protocol.zenoh import KeySpace
+
+
+def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_path, capsys):
+    agent_factory("rep", fault_every=6)
+    daemon = daemon_factory("rep", episodes=15, kappa=2.0)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    with LearnerClient(KeySpace("rep"), [router.endpoint]) as client:
+        final = client.state()
+    daemon.stop()
+    out = tmp_path / "report"
+    summary = write_report(daemon.config.db, daemon.run.run_id, out)
+    assert summary == json.loads((out / "summary.json").read_text())
+    for name in ("learning_curve.png", "critic.png", "telemetry.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    with Store(daemon.config.db, readonly=True) as store:
+        costs = [e.cost for e in store.ok_episodes(daemon.run.run_id)]
+        attempts = store.attempts(daemon.run.run_id)
+    assert summary["episodes"] == 15 and summary["attempts"] == len(attempts)
+    assert summary["attempts_by_status"]["fault_pdo_timeout"] == len(attempts) - 15
+    assert tuple(summary["final_theta"]) == final.theta and summary["kappa"] == 2.0
+    assert summary["cost"]["all"]["mean"] == pytest.approx(statistics.fmean(costs))
+    assert summary["cost"]["last_10"]["mean"] == pytest.approx(statistics.fmean(costs[-10:]))
+    assert summary["cost"]["all"]["max"] == max(costs) and summary["wall_time_s"] > 0
+    critic = summary["critic_at_final_theta"]
+    assert critic["F"] == pytest.approx(critic["J"] + 2.0 * critic["r"]) and critic["r"] > 0
+
+    assert main(["report", daemon.run.run_id, "--db", str(daemon.config.db), "--out", str(tmp_path / "cli")]) == 0
+    assert "summary.json" in capsys.readouterr().out
+    assert main(["report", "no-such-run", "--db", str(daemon.config.db), "--out", str(tmp_path / "x")]) == 2
+    assert main(["report", "x", "--db", str(tmp_path / "missing.db"), "--out", str(tmp_path / "y")]) == 2
