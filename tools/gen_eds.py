@@ -57,14 +57,14 @@ class Device:
 
 
 # ---- manufacturer objects -------------------------------------------------------------------
-def axis_objects(axes: tuple[str, ...], pos_type: int) -> list[Obj]:
+def axis_objects(axes: tuple[str, ...], pos_type: int, current_limit: str) -> list[Obj]:
     n = len(axes)
     return [
         Obj(0x2000, Var("Position actual", pos_type, "ro", pdo=True, unit="1e-4 rad"), n, axes),
         Obj(0x2001, Var("Velocity actual", INT16, "ro", pdo=True, unit="1e-3 rad/s"), n, axes),
         Obj(0x2002, Var("Motor current", INT16, "ro", pdo=True, unit="1 mA"), n, axes),
         Obj(0x2003, Var("Motor voltage", INT16, "ro", pdo=True, unit="1 mV"), n, axes),
-        Obj(0x2034, Var("Current limit", UINT16, default="10000", low=0, high=30000, unit="1 mA"), n, axes),
+        Obj(0x2034, Var("Current limit", UINT16, default=current_limit, low=0, high=30000, unit="1 mA"), n, axes),
     ]
 
 
@@ -109,7 +109,7 @@ def devices() -> list[Device]:
     wheel = Device("wheel.eds", "uBot wheel controller", 0x0001,
                    "Two-axis DC motor controller for the differential-drive wheels (torque mode)",
                    wheels)
-    wheel.objects = axis_objects(wheels, INT32) + [
+    wheel.objects = axis_objects(wheels, INT32, "10000") + [
         STATUS, CONTROL,
         Obj(0x2020, Var("Torque command", INT16, pdo=True, low=-20000, high=20000, unit="1 mNm"), 2, wheels),
     ]
@@ -121,7 +121,7 @@ def devices() -> list[Device]:
     torso_axes = ("torso",)
     torso = Device("torso.eds", "uBot torso controller", 0x0002,
                    "One-axis DC motor controller for torso rotation (joint impedance mode)", torso_axes)
-    torso.objects = axis_objects(torso_axes, INT16) + [STATUS, CONTROL] + joint_objects(torso_axes, "20000", "2000")
+    torso.objects = axis_objects(torso_axes, INT16, "4000") + [STATUS, CONTROL] + joint_objects(torso_axes, "20000", "2000")
     torso.tpdos = [pdo((0x2000, 1, 16), (0x2001, 1, 16), (0x2002, 1, 16), (0x2003, 1, 16)),
                    pdo((0x2010, 0, 16))]
     torso.rpdos = [pdo((0x2021, 1, 16), (0x2011, 0, 16))]
@@ -130,7 +130,7 @@ def devices() -> list[Device]:
     arm = Device("arm.eds", "uBot arm controller", 0x0003,
                  "Two-axis DC motor controller for one arm (shoulder, elbow): joint impedance, "
                  "on-board cubic spline tracking", arm_axes)
-    arm.objects = (axis_objects(arm_axes, INT16) + [STATUS, CONTROL]
+    arm.objects = (axis_objects(arm_axes, INT16, "12000") + [STATUS, CONTROL]
                    + joint_objects(arm_axes, "5000", "500") + spline_objects(arm_axes))
     arm.tpdos = [pdo((0x2000, 1, 16), (0x2000, 2, 16), (0x2001, 1, 16), (0x2001, 2, 16)),
                  pdo((0x2002, 1, 16), (0x2002, 2, 16), (0x2003, 1, 16), (0x2003, 2, 16)),
