@@ -99,12 +99,16 @@ def run(scenario: str, gains: np.ndarray, clock: bool = False) -> tuple[float, i
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="episodes per scenario (best is reported)")
-    args = ap.parse_args()
+    report(ap.parse_args().repeat)
+
+
+def report(repeat: int = 3) -> None:
+    """Print the physics-only table (one row per scenario)."""
     with threadpool_limits(limits=1):
         gains = _gains()
         print(f"{'scenario':9} {'sim s':>6} {'periods/s':>10} {'RTF':>7} {'us/period':>10} {'MuJoCo %':>9}")
         for scenario in EPISODES:
-            best = min(run(scenario, gains)[0] for _ in range(args.repeat))
+            best = min(run(scenario, gains)[0] for _ in range(repeat))
             wall, n, mj = run(scenario, gains, clock=True)
             sim_s = n * 0.005
             print(f"{scenario:9} {sim_s:6.1f} {n / best:10.0f} {sim_s / best:7.1f} {best / n * 1e6:10.1f}"

@@ -18,25 +18,16 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
-from firmware_sim.simulator import Simulator  # noqa: E402
 from protocol.can import cobid  # noqa: E402
 from protocol.can.bench import BENCH, object_dictionary  # noqa: E402
 from protocol.can.busconfig import BusConfig, open_network  # noqa: E402
 from protocol.can.pdo import cyclic_pdos  # noqa: E402
-
-
-def physics_rtf(scenario: str, seconds: float = 4.0) -> float:
-    sim = Simulator()
-    sim.reset(scenario, 0)
-    n = int(seconds / sim.control_period)
-    t0 = time.perf_counter()
-    for _ in range(n):
-        sim.step()
-    return seconds / (time.perf_counter() - t0)
+import sim_physics  # noqa: E402
 
 
 def can_cycles_per_second(config: BusConfig, cycles: int) -> tuple[float, float, float]:
@@ -78,10 +69,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cycles", type=int, default=1000)
     args = ap.parse_args()
-    print("physics only (Simulator.step, 5 ms period, 5 substeps, no commands):")
-    print(f"{'scenario':<10} {'real-time factor':>17}")
-    for scenario in ("idle", "bracing", "lifting"):
-        print(f"{scenario:<10} {physics_rtf(scenario):>16.1f}x", flush=True)
+    print("physics only (bench/sim_physics.py: Simulator.step with an LQR, no CAN):")
+    sim_physics.report(repeat=2)
     print(f"\nlock-step through the CAN stack ({args.cycles} cycles, 4 RPDOs + SYNC + 13 TPDOs each):")
     print(f"{'backend':<32} {'cycles/s':>9} {'RTF':>6} {'p50 ms':>7} {'p99 ms':>7}")
     backends: list[tuple[str, object]] = [("virtual", lambda: BusConfig("virtual", "bench-speed"))]
