@@ -194,9 +194,20 @@ class LocalFit:
         loglam[shared] = p.log_lambda[pos[shared]]
         return VHGPParams(loglam, p.kernel)
 
+    def compatible_with(self, ids: np.ndarray, costs: np.ndarray) -> bool:
+        """True if every observation this fit shares with `ids` still has the cost the fit
+        saw (costs (N,) the current costs of all observations)."""
+        common, mine, _ = np.intersect1d(self.ids, ids, assume_unique=True, return_indices=True)
+        return bool(np.array_equal(self.model.y[mine], costs[common]))
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able record that rebuilds this fit exactly (with the same data)."""
-        return {"ids": [int(i) for i in self.ids], "params": self.model.params.to_dict()}
+        """JSON-able record that rebuilds this fit exactly: indices, the costs it was fitted
+        to (they may change later by re-weighting) and the VHGP coordinates."""
+        return {
+            "ids": [int(i) for i in self.ids],
+            "y": [float(v) for v in self.model.y],
+            "params": self.model.params.to_dict(),
+        }
 
 
 def _estimate(
@@ -288,6 +299,9 @@ class LocalCritic:
         the cached fit whatever the warm start; without, the result depends only on the
         data, `warm_start` and `also_cold` (what the learner's update path needs for exact
         resume).  also_cold: with a warm start, also fit cold and keep the higher bound.
+        A warm start is ignored (cold fit) if the costs of the observations it shares with
+        `ids` have changed since (re-weighting): its hyperparameters describe other costs, and
+        measured, starting from them left the fit on a plateau (slope 0.01 instead of 18).
         """
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size < MIN_FIT_POINTS:
@@ -298,7 +312,11 @@ class LocalCritic:
             return self._cache[key]
         X = self._data.points[ids]
         y = self._data.costs[ids]
-        warm = warm_start is not None and warm_start.model.X.shape[1] == X.shape[1]
+        warm = (
+            warm_start is not None
+            and warm_start.model.X.shape[1] == X.shape[1]
+            and warm_start.compatible_with(ids, self._data.costs)
+        )
         model = self._new_model(X.shape[1])
         if warm:
             assert warm_start is not None
@@ -336,13 +354,18 @@ class LocalCritic:
         return self.fit_ids(self.neighbourhood(theta), warm_start=warm_start, use_cache=use_cache)
 
     def restore(self, record: dict[str, Any]) -> LocalFit:
-        """Rebuild a fit from LocalFit.to_dict() without optimising (exact)."""
+        """Rebuild a fit from LocalFit.to_dict() without optimising (exact), with the costs
+        recorded in it (which may differ from the current ones after re-weighting)."""
         ids = np.asarray(record["ids"], dtype=np.int64)
         if ids.size < MIN_FIT_POINTS or ids.max(initial=-1) >= self._data.points.shape[0] or np.any(np.diff(ids) <= 0):
             raise CriticInputError("fit record refers to observations the critic does not have")
-        model = VHGP.from_params(self._data.points[ids], self._data.costs[ids], VHGPParams.from_dict(record["params"]))
+        y = np.asarray(record["y"], dtype=float) if "y" in record else self._data.costs[ids]
+        if y.shape != ids.shape:
+            raise CriticInputError("fit record: y and ids differ in length")
+        model = VHGP.from_params(self._data.points[ids], y, VHGPParams.from_dict(record["params"]))
         fit = LocalFit(ids, model)
-        self._remember(self._key(ids), fit)
+        if np.array_equal(y, self._data.costs[ids]):
+            self._remember(self._key(ids), fit)
         return fit
 
     def estimate(self, theta: np.ndarray, kappa: float = 0.0, warm_start: LocalFit | None = None) -> CriticEstimate:
