@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 
 Key = tuple[int, int]
 OPERATIONAL, PRE_OPERATIONAL, INITIALISING = 5, 127, 0
+WATCHDOG_TICK_S = 0.02
+"""Heartbeat production and consumer check resolution (loss detected within 20 ms)."""
 
 
 class NodeApplication:
@@ -132,6 +134,7 @@ class SlaveNode(canopen.LocalNode):
         self._agent_last_hb: float | None = None
         self._hb_lost = False
         self.sync_count = 0
+        self._layouts: list | None = None
         self.app.attach(self)
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -242,14 +245,25 @@ class SlaveNode(canopen.LocalNode):
         self.sync_count += 1
         with self._lock:
             self.app.sample()
+            for cob_id, every, layout, keys in self._tpdo_layouts():
+                if self.sync_count % every == 0:
+                    data = layout.pack(*(int(self.value(*k)) for k in keys))
+                    self.network.send_message(cob_id, data)
+
+    def _tpdo_layouts(self) -> list[tuple[int, int, struct.Struct, tuple[Key, ...]]]:
+        """Packing plan of the synchronous TPDOs (COB-ID, every n-th SYNC, struct, keys),
+        compiled once from the PDO maps: canopen's per-variable encoding was the hot path."""
+        if self._layouts is None:
+            plans = []
             for pdo_map in self.tpdo.map.values():
-                if not pdo_map.enabled or not (1 <= (pdo_map.trans_type or 0) <= 240):
+                if not pdo_map.enabled or not 1 <= (pdo_map.trans_type or 0) <= 240:
                     continue
-                if self.sync_count % pdo_map.trans_type:
-                    continue
-                for var in pdo_map.map:
-                    var.raw = self.value(var.index, var.subindex)
-                pdo_map.transmit()
+                fmt = "<" + "".join(v.od.STRUCT_TYPES[v.od.data_type].format.lstrip("<")
+                                    for v in pdo_map.map)
+                keys = tuple((v.index, v.subindex) for v in pdo_map.map)
+                plans.append((pdo_map.cob_id, pdo_map.trans_type, struct.Struct(fmt), keys))
+            self._layouts = plans
+        return self._layouts
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         self.apply_commands()
@@ -289,7 +303,7 @@ class SlaveNode(canopen.LocalNode):
 
     def _watch(self) -> None:
         next_hb = time.monotonic()
-        while not self._stop.wait(0.005):
+        while not self._stop.wait(WATCHDOG_TICK_S):
             now = time.monotonic()
             period = int(self.value(Index.PRODUCER_HEARTBEAT, 0)) / 1000.0
             if period > 0 and now >= next_hb:
