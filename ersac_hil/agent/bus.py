@@ -40,14 +40,11 @@ from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device, object_dictionary
-from protocol.can.busconfig import BusConfig, open_bus
+from protocol.can.busconfig import BusConfig, open_network
 from protocol.can.objects import Scale
 
 log = logging.getLogger(__name__)
 
-NOTIFIER_CYCLE_S = 0.05
-"""Receive poll timeout of the Notifier thread (canopen's 1 s default makes every
-``close`` wait up to a second for the thread to notice)."""
 NMT_STATES = {0: "BOOTUP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
@@ -57,14 +54,16 @@ class BusTiming:
 
     Attributes:
         period_s: control period, the SYNC interval in real-time mode (default 5 ms, 200 Hz).
-        deadline_s: how long a cycle waits for its TPDOs after SYNC.
+        deadline_s: how long a cycle waits for its TPDOs after SYNC (a real bench answers
+            within a millisecond; the default leaves room for a simulator on a loaded machine
+            and still ends an episode well within a second of the bench going away).
         heartbeat_timeout_s: a node whose last heartbeat is older is lost (producers send
-            every 100 ms; the default tolerates four missed heartbeats plus scheduling jitter).
+            every 100 ms; the default tolerates five missed heartbeats plus scheduling jitter).
         realtime: pace SYNC by the wall clock instead of lock-step.
     """
     period_s: float = 0.005
-    deadline_s: float = 0.1
-    heartbeat_timeout_s: float = 0.45
+    deadline_s: float = 0.25
+    heartbeat_timeout_s: float = 0.6
     realtime: bool = False
 
     def __post_init__(self) -> None:
@@ -111,9 +110,7 @@ class AgentBus:
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> "AgentBus":
         try:
-            network = canopen.Network(open_bus(self.config))
-            network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-            self.network = network.connect()
+            self.network = open_network(self.config)
         except (OSError, can.CanError, ValueError) as exc:
             raise BusDown(f"cannot open CAN bus {self.config.describe()}: {exc}") from exc
         net = self.network

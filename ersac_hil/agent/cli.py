@@ -20,10 +20,10 @@ def register(subparsers) -> None:
                    help="zenoh session mode (default client, through a router)")
     p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
     p.add_argument("--period-ms", type=float, default=5.0, help="control period (default 5 ms)")
-    p.add_argument("--deadline-ms", type=float, default=100.0,
-                   help="how long a SYNC cycle waits for its TPDOs (default 100 ms)")
-    p.add_argument("--heartbeat-timeout-ms", type=float, default=450.0,
-                   help="a node silent this long is lost (default 450 ms)")
+    p.add_argument("--deadline-ms", type=float, default=250.0,
+                   help="how long a SYNC cycle waits for its TPDOs (default 250 ms)")
+    p.add_argument("--heartbeat-timeout-ms", type=float, default=600.0,
+                   help="a node silent this long is lost (default 600 ms)")
     p.set_defaults(func=_run)
 
 

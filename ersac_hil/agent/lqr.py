@@ -42,7 +42,7 @@ class LqrWeights:
     alpha_max: float = 0.05    # rad of pitch error
     v_max: float = 0.5         # m/s
     alpha_rate_max: float = 0.5  # rad/s
-    u_max: float = 1.0         # N m per wheel (the drivers deliver 2.36)
+    u_max: float = 1.0         # N m per wheel (the drivers deliver up to 7.85)
 
     def q_z(self) -> np.ndarray:
         return np.diag(np.array([self.x_max, self.alpha_max, self.v_max, self.alpha_rate_max]) ** -2.0)

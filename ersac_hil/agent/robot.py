@@ -71,7 +71,7 @@ class RobotParameters:
     wheel_damping: float = 0.002
     wheel_kt: float = 0.0302
     wheel_gear: float = 26.0
-    wheel_current_limit: float = 3.0
+    wheel_current_limit: float = 10.0
     half_track: float = 0.155
     lower_body: tuple[Part, ...] = (_box(8.0, 0.15, 0.07, 0.17), _box(1.4, 0.03, 0.06, 0.04))
     torso_height: float = 0.32

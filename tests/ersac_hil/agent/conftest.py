@@ -6,7 +6,6 @@ import importlib
 import sys
 from pathlib import Path
 
-import canopen
 import pytest
 
 
@@ -29,19 +28,17 @@ def _unshadow_ersac_hil() -> None:
 
 _unshadow_ersac_hil()
 
-from ersac_hil.agent.bus import AgentBus, BusTiming  # noqa: E402
+from ersac_hil.agent.bus import AgentBus  # noqa: E402
 from firmware_sim.nodes import SlaveNode  # noqa: E402
 from protocol.can.bench import BENCH  # noqa: E402
-from protocol.can.busconfig import open_bus  # noqa: E402
+from protocol.can.busconfig import open_network  # noqa: E402
 
 
 class ReferenceBench:
     """Every bench device as a ``SlaveNode`` with the static application, on its own network."""
 
     def __init__(self, bus_config, devices=BENCH):
-        self.network = canopen.Network(open_bus(bus_config))
-        self.network.NOTIFIER_CYCLE = 0.05  # fast disconnect
-        self.network.connect()
+        self.network = open_network(bus_config)
         self.nodes = {d.name: SlaveNode(d) for d in devices}
         for node in self.nodes.values():
             node.connect(self.network)
@@ -82,6 +79,6 @@ def reference_bench(can_backend):
 
 @pytest.fixture
 def agent_bus(reference_bench, can_backend):
-    with AgentBus(can_backend, timing=BusTiming(deadline_s=0.1, heartbeat_timeout_s=0.3)) as bus:
+    with AgentBus(can_backend) as bus:
         bus.wait_for_nodes()
         yield bus

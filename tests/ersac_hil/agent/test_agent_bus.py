@@ -103,8 +103,8 @@ def test_silent_node_is_heartbeat_lost(agent_bus, reference_bench):
     agent_bus.nmt_start()
     agent_bus.cycle()
     reference_bench.remove("arm_right")
-    time.sleep(0.45)
-    assert agent_bus.heartbeat_ages()["arm_right"] > 0.3
+    time.sleep(0.8)
+    assert agent_bus.heartbeat_ages()["arm_right"] > agent_bus.timing.heartbeat_timeout_s
     assert not agent_bus.present("arm_right") and agent_bus.present("arm_left")
     with pytest.raises(HeartbeatLost) as exc:
         agent_bus.cycle()

@@ -8,7 +8,7 @@ import uuid
 import numpy as np
 import pytest
 
-from ersac_hil.agent.bus import AgentBus, BusTiming
+from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.configure import reset_scenario
 from ersac_hil.agent.episode import EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
@@ -111,7 +111,7 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
     config = new_config()
     bench = SimulatedBench(config)
     try:
-        with AgentBus(config, timing=BusTiming(deadline_s=0.1)) as bus:
+        with AgentBus(config) as bus:
             bus.wait_for_nodes()
             runner = EpisodeRunner(bus)
 
