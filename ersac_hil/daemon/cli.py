@@ -98,7 +98,9 @@ def _router(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- clients
-def _client_call(args: argparse.Namespace, action) -> int:  # noqa: ANN001
+def _client_call(args: argparse.Namespace, action, render=None) -> int:  # noqa: ANN001
+    """Run ``action(client)``; print ``render(reply)`` (default: human text, or the reply's
+    JSON with ``--json``). Maps failures to exit codes 1 (refused / no answer) and 2."""
     from protocol.zenoh import KeySpace, PayloadError
     from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError
 
@@ -117,7 +119,7 @@ def _client_call(args: argparse.Namespace, action) -> int:  # noqa: ANN001
     if args.json:
         print(reply.to_json().decode(), flush=True)
     else:
-        print(_human(reply), flush=True)
+        print((render or _human)(reply), flush=True)
     return 0
 
 
@@ -149,10 +151,7 @@ def _kappa(args: argparse.Namespace) -> int:
     if args.action == "get":
         if args.value is not None:
             return _fail("kappa get takes no value")
-        if args.json:
-            return _client_call(args, lambda c: c.state())
-        return _client_call(argparse.Namespace(**{**vars(args), "json": False}),
-                            lambda c: _Text(f"{c.state().kappa:g}"))
+        return _client_call(args, lambda c: c.state(), lambda s: f"{s.kappa:g}")
     if args.value is None:
         return _fail("kappa set needs a VALUE")
     return _client_call(args, lambda c: c.set_kappa(args.value))
@@ -160,20 +159,12 @@ def _kappa(args: argparse.Namespace) -> int:
 
 def _weights(args: argparse.Namespace) -> int:
     if args.action == "get":
-        return _client_call(args, lambda c: _Text(json.dumps(dict(c.state().weights))))
+        if args.weight:
+            return _fail("weights get takes no values")
+        return _client_call(args, lambda c: c.state(), lambda s: json.dumps(dict(s.weights)))
     if not args.weight:
         return _fail("weights set needs NAME=VALUE ...")
     return _client_call(args, lambda c: c.set_weights(dict(args.weight)))
-
-
-class _Text:
-    TYPE = "text"
-
-    def __init__(self, text: str) -> None:
-        self.text = text
-
-    def to_json(self) -> bytes:
-        return self.text.encode()
 
 
 def _critic(args: argparse.Namespace) -> int:
@@ -193,9 +184,16 @@ def _select(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- report
 def _report(args: argparse.Namespace) -> int:
     from .report import write_report
-    from .store import StoreError
+    from .store import Store, StoreError
     try:
-        summary = write_report(args.db, args.run_id, args.out)
+        run_id = args.run_id
+        if run_id == "latest":
+            with Store(args.db, readonly=True) as store:
+                runs = store.runs()
+            if not runs:
+                return _fail(f"no run in {args.db}")
+            run_id = runs[-1].run_id
+        summary = write_report(args.db, run_id, args.out)
     except StoreError as exc:
         return _fail(str(exc))
     print(f"report of run {summary['run_id']} in {Path(args.out).resolve()}: "
@@ -286,7 +284,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_select)
 
     p = sub.add_parser("report", help="plots and summary.json of a run")
-    p.add_argument("run_id")
+    p.add_argument("run_id", help="run id, or 'latest'")
     p.add_argument("--db", default="ersac.db", help="SQLite store (default ersac.db)")
     p.add_argument("--out", default="report", help="output directory (default ./report)")
     p.set_defaults(func=_report)

@@ -202,3 +202,24 @@ def _wait_for_store(db: Path, predicate, timeout_s: float = 60.0) -> None:  # no
                 pass
         time.sleep(0.01)
     pytest.fail("the daemon did not get there in time")
+
+
+def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp_path):
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    agent_factory("res", delay_s=3.0)
+    db = tmp_path / "term.db"
+    proc = subprocess.Popen(_daemon_cmd(router, db), env=env, cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        _wait_for_store(db, lambda s, run: s.attempts(run, "pending"))
+        start = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+        assert time.monotonic() - start < 2.5  # the 3 s episode is cancelled, not waited for
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, out
+    with Store(db, readonly=True) as store:
+        (run,) = store.runs()
+        assert [a.status for a in store.attempts(run.run_id)] == ["interrupted"]
+        assert run.status == "running"  # resumable

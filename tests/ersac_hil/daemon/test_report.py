@@ -40,5 +40,7 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
 
     assert main(["report", daemon.run.run_id, "--db", str(daemon.config.db), "--out", str(tmp_path / "cli")]) == 0
     assert "summary.json" in capsys.readouterr().out
+    assert main(["report", "latest", "--db", str(daemon.config.db), "--out", str(tmp_path / "l")]) == 0
+    assert json.loads((tmp_path / "l" / "summary.json").read_text())["run_id"] == daemon.run.run_id
     assert main(["report", "no-such-run", "--db", str(daemon.config.db), "--out", str(tmp_path / "x")]) == 2
     assert main(["report", "x", "--db", str(tmp_path / "missing.db"), "--out", str(tmp_path / "y")]) == 2
