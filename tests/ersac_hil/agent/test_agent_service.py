@@ -39,6 +39,22 @@ def stop(proc: subprocess.Popen) -> None:
     proc.communicate(timeout=10)
 
 
+def alive(session) -> list[str]:
+    return [str(r.ok.key_expr) for r in session.liveliness().get(KS.agent_alive, timeout=1)
+            if r.ok is not None]
+
+
+def wait_for_agent(session, timeout_s: float = 10.0) -> list[str]:
+    """Declarations reach a new client asynchronously: a get before the agent's queryable is
+    known has no replies. The token is declared after the queryable."""
+    deadline = time.monotonic() + timeout_s
+    keys = alive(session)
+    while not keys and time.monotonic() < deadline:
+        time.sleep(0.05)
+        keys = alive(session)
+    return keys
+
+
 class Stack:
     def __init__(self):
         self.hub = LoopbackHub()
@@ -51,6 +67,7 @@ class Stack:
         line = self.agent.stdout.readline()
         assert line.startswith("agent ready"), line + self.agent.stderr.read()
         self.session = self.router.open_client()
+        assert wait_for_agent(self.session), "agent not visible"
         self.done: list[EpisodeDone] = []
         self.sub = self.session.declare_subscriber(
             KS.episode_done, lambda s: self.done.append(EpisodeDone.from_json(s.payload)))
@@ -86,12 +103,7 @@ def request(task, theta, seed=0) -> bytes:
 
 
 def test_liveliness_token_is_declared(stack):
-    deadline = time.monotonic() + 5
-    keys = []
-    while not keys and time.monotonic() < deadline:
-        keys = [str(r.ok.key_expr) for r in stack.session.liveliness().get(KS.agent_alive, timeout=1)
-                if r.ok is not None]
-    assert keys == [KS.agent_alive]
+    assert wait_for_agent(stack.session) == [KS.agent_alive]
 
 
 def test_bracing_cost_depends_on_stiffness_and_stiff_arms_get_damaged(stack):
@@ -167,12 +179,9 @@ def test_agent_process_stops_cleanly_on_sigterm(stack):
     assert stack.agent.returncode == 143, err
     assert "agent stopped after" in out and "Traceback" not in err
     deadline = time.monotonic() + 3
-    while time.monotonic() < deadline:
-        if not [r for r in stack.session.liveliness().get(KS.agent_alive, timeout=1) if r.ok is not None]:
-            break
+    while alive(stack.session) and time.monotonic() < deadline:
         time.sleep(0.05)
-    else:
-        pytest.fail("liveliness token still there after the agent stopped")
+    assert not alive(stack.session), "liveliness token still there after the agent stopped"
 
 
 def test_killing_the_simulator_mid_episode_is_a_fault_within_a_second():
@@ -181,6 +190,7 @@ def test_killing_the_simulator_mid_episode_is_a_fault_within_a_second():
         config = AgentConfig(robot=ROBOT, bus=hub.bus_config, zenoh_connect=(router.endpoint,))
         try:
             with AgentService(config), router.open_client() as session:
+                assert wait_for_agent(session)
                 killed: list[float] = []
 
                 def kill():

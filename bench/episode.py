@@ -1,0 +1,137 @@
+"""Episode speed through the whole stack: Zenoh query -> agent -> CANopen -> simulator.
+
+    python bench/episode.py [--episodes N] [--realtime]
+
+Per available CAN backend, runs N bracing (theta 0.5) and N lifting (a sensible spline)
+episodes by ``episode/run`` queries from a Zenoh client through an embedded router, and prints
+the median wall time, the real-time factor (simulated episode time / wall time) and the
+SYNC-cycle latency (SYNC sent -> last TPDO of that SYNC received) p50/p99 as the agent measured
+it. Backends:
+
+* ``virtual``: agent and simulated bench in this process (python-can's virtual bus is
+  in-process only);
+* ``remote``: the loopback hub in this process, the simulator (``python -m firmware_sim``) and
+  the agent (``ersac-hil agent``) as separate processes, as deployed;
+* ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
+
+No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
+from protocol.can.busconfig import BusConfig  # noqa: E402
+from protocol.zenoh import EpisodeRequest, EpisodeResult, ErrorReply, KeySpace  # noqa: E402
+
+ROBOT = "bench"
+KS = KeySpace(ROBOT)
+TASKS = {"bracing": (0.5,), "lifting": (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)}
+
+
+def wait_for_agent(session, timeout_s: float = 10.0) -> None:
+    """Until the agent's liveliness token is visible (its queryable is declared before it):
+    declarations reach a new client asynchronously, and a get before that has no replies."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if any(r.ok is not None for r in session.liveliness().get(KS.agent_alive, timeout=1)):
+            return
+        time.sleep(0.05)
+    raise RuntimeError(f"no agent at {KS.agent_alive} within {timeout_s} s")
+
+
+def run_episodes(session, n: int) -> dict[str, list[EpisodeResult]]:
+    wait_for_agent(session)
+    out: dict[str, list[EpisodeResult]] = {}
+    for task, theta in TASKS.items():
+        out[task] = []
+        for seed in range(n):
+            req = EpisodeRequest(f"bench-{uuid.uuid4().hex[:8]}", task, theta, seed)
+            (reply,) = list(session.get(KS.episode_run, payload=req.to_json(), timeout=120))
+            if reply.ok is None:
+                raise RuntimeError(ErrorReply.from_json(reply.err.payload.to_bytes()).reason)
+            out[task].append(EpisodeResult.from_json(reply.ok.payload))
+    return out
+
+
+def in_process(config: BusConfig, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
+    from ersac_hil.agent.bus import BusTiming
+    from ersac_hil.agent.service import AgentConfig, AgentService
+    from firmware_sim.nodes.simbench import SimulatedBench
+
+    with EmbeddedRouter() as router, SimulatedBench(config, realtime=realtime):
+        agent = AgentConfig(robot=ROBOT, bus=config, zenoh_connect=(router.endpoint,),
+                            timing=BusTiming(realtime=realtime))
+        with AgentService(agent), router.open_client() as session:
+            return run_episodes(session, n)
+
+
+def processes(config: BusConfig, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
+    bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
+    extra = ["--realtime"] if realtime else []
+    procs = []
+    try:
+        with EmbeddedRouter() as router:
+            sim = subprocess.Popen([sys.executable, "-m", "firmware_sim", *bus_args, *extra],
+                                   stdout=subprocess.PIPE, text=True)
+            procs.append(sim)
+            sim.stdout.readline()
+            agent = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT,
+                                      *bus_args, "--zenoh", router.endpoint, *extra],
+                                     stdout=subprocess.PIPE, text=True)
+            procs.append(agent)
+            agent.stdout.readline()
+            with router.open_client() as session:
+                return run_episodes(session, n)
+    finally:
+        for p in procs:
+            p.terminate()
+            p.communicate(timeout=10)
+
+
+def report(backend: str, results: dict[str, list[EpisodeResult]]) -> None:
+    for task, rs in results.items():
+        ok = [r for r in rs if r.status == "ok"]
+        wall = statistics.median(r.wall_s for r in rs)
+        sim = statistics.median(r.duration_s for r in rs)
+        p50 = statistics.median(r.telemetry.get("sync_latency_p50_ms", float("nan")) for r in rs)
+        p99 = max(r.telemetry.get("sync_latency_p99_ms", float("nan")) for r in rs)
+        cycles = statistics.median(r.telemetry.get("n_cycles", 0.0) for r in rs)
+        print(f"{backend:<10} {task:<8} {len(ok)}/{len(rs)} ok  sim {sim:5.2f} s  wall {wall:5.2f} s  "
+              f"RTF {sim / wall:5.2f}  {cycles / wall:6.0f} cycles/s  "
+              f"SYNC latency p50 {p50:5.2f} ms  p99 {p99:6.2f} ms")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=3, help="episodes per task and backend")
+    parser.add_argument("--realtime", action="store_true", help="real-time mode (agent and simulator)")
+    args = parser.parse_args()
+    mode = "real-time" if args.realtime else "lock-step"
+    print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {args.episodes} per task; "
+          f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
+    report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
+                                 args.episodes, args.realtime))
+    with LoopbackHub() as hub:
+        report("remote", processes(hub.bus_config, args.episodes, args.realtime))
+    status = vcan_status("vcan0")
+    if status.available:
+        report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime))
+    else:
+        print(f"socketcan  skipped: {status.reason}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
