@@ -8,7 +8,7 @@ import uuid
 import numpy as np
 import pytest
 
-from ersac_hil.agent.bus import AgentBus
+from ersac_hil.agent.bus import AgentBus, BusTiming
 from ersac_hil.agent.configure import reset_scenario
 from ersac_hil.agent.episode import EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
@@ -133,3 +133,16 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
     assert r.status == status and r.fault_counts[counter] == 1
     assert r.cost_terms == {} and r.total_cost is None
     assert 0.5 <= r.duration_s < 1.0 and r.telemetry["n_cycles"] == pytest.approx(r.duration_s / 0.005)
+
+
+def test_realtime_episode_paces_sync_by_the_wall_clock():
+    config = new_config()
+    with SimulatedBench(config, realtime=True) as bench, \
+            AgentBus(config, timing=BusTiming(realtime=True)) as bus:
+        bus.wait_for_nodes()
+        runner = EpisodeRunner(bus)
+        r = run(runner, "bracing", (0.5,), seed=1)
+    assert r.status == "ok" and r.telemetry["n_cycles"] == 400
+    assert r.wall_s >= 2.0  # 400 SYNCs at 5 ms cannot finish sooner
+    assert "late_cycles" in r.fault_counts
+    assert bench.stats.cycles > 0
