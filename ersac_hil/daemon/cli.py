@@ -227,7 +227,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sigma", type=_floats, help="exploration std per parameter, comma-separated")
     p.add_argument("--eta", type=float, help="learning rate (default 0.1)")
     p.add_argument("--epsilon", type=float, help="critic neighbourhood radius (default 0.25)")
-    p.add_argument("--lr-range", dest="lr_range", type=_floats, help="clip of eta/r~ (default 0.01,0.5)")
+    p.add_argument("--lr-range", dest="lr_range", type=_floats, help="clip of eta/r~ (default: bracing 0.001,0.05, lifting 0.01,0.5)")
     p.add_argument("--weight", action="append", type=_weight, metavar="NAME=VALUE",
                    help="cost-term weight (repeatable; default: the task's)")
     p.add_argument("--zenoh", action="append", metavar="ENDPOINT",

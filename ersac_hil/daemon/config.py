@@ -52,6 +52,11 @@ class ConfigError(ValueError):
 LEARNER_FIELDS: tuple[str, ...] = (
     "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed",
 )
+#: Default clip of eta / r~ per task. The paper clips to [0.01, 0.5] for its costs; the
+#: simulated bracing costs are ~10x larger (J ~ 200-400, std ~ 50, docs/robot_model.md), so
+#: r~ is ~10x larger too and the same clip scaled by 1/10 keeps eta / r~ = 0.1 / r~ inside it
+#: (with [0.01, 0.5] the floor takes over and single outlier costs move theta by ~0.4).
+DEFAULT_LR_RANGE: dict[str, tuple[float, float]] = {"bracing": (0.001, 0.05), "lifting": (0.01, 0.5)}
 #: Episode budget of a new run unless configured.
 DEFAULT_EPISODES = 45
 #: Sentinel values of ``resume``.
@@ -119,7 +124,8 @@ class DaemonConfig:
         sigma: exploration std per parameter, ``(dim,)``, > 0 (default: 10 % of each range).
         eta: learning rate numerator of the update (``eta / r~`` is clipped to ``lr_range``).
         epsilon: radius of the critic's neighbourhood ball (in theta units).
-        lr_range: ``(lo, hi)`` clip of ``eta / r~``, ``0 < lo <= hi``.
+        lr_range: ``(lo, hi)`` clip of ``eta / r~``, ``0 < lo <= hi`` (default:
+            :data:`DEFAULT_LR_RANGE` of the task).
         weights: complete cost-term weights (the task's term names), >= 0.
         zenoh: Zenoh endpoints to connect to as a client, each ``tcp/127.0.0.1:PORT``.
         db: SQLite store path.
@@ -145,7 +151,7 @@ class DaemonConfig:
     sigma: tuple[float, ...] | None = None
     eta: float = 0.1
     epsilon: float = 0.25
-    lr_range: tuple[float, float] = (0.01, 0.5)
+    lr_range: tuple[float, float] | None = None
     weights: Mapping[str, float] | None = None
     prefix: str = "ersac"
     zenoh: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
@@ -183,7 +189,7 @@ class DaemonConfig:
         set_("sigma", sigma)
         set_("eta", _finite(self.eta, "eta", 0.0, open_lo=True))
         set_("epsilon", _finite(self.epsilon, "epsilon", 0.0, open_lo=True))
-        lr = _vector(self.lr_range, "lr_range", 2)
+        lr = _vector(DEFAULT_LR_RANGE[self.task] if self.lr_range is None else self.lr_range, "lr_range", 2)
         if not 0 < lr[0] <= lr[1]:
             raise ConfigError(f"lr_range must satisfy 0 < lo <= hi, got {lr}")
         set_("lr_range", lr)

@@ -167,6 +167,18 @@ class Engine:
         """Complete new weights; every stored observation is re-costed by the learner."""
         self._learner.reweight(CostWeights(dict(weights)))
 
+    def check_weights(self, weights: Mapping[str, float]) -> None:
+        """Raise ``ValueError`` if ``weights`` would make any stored cost non-finite."""
+        w = CostWeights(dict(weights))
+        store = self._learner.store
+        if len(store) and set(w.names) == set(store.weights.names):
+            with np.errstate(over="ignore", invalid="ignore"):
+                costs = w.combine_rows(np.asarray(store.terms))
+            bad = np.flatnonzero(~np.isfinite(costs))
+            if bad.size:
+                raise ValueError(f"these weights make the cost of {bad.size} stored episode(s) "
+                                 f"non-finite (first: episode {int(bad[0]) + 1})")
+
     def adopt(self, theta: Sequence[float]) -> None:
         """Make ``theta`` the policy mean (no pending proposal allowed).
 

@@ -43,6 +43,7 @@ from protocol.zenoh import (
     EpisodeRequest,
     EpisodeResult,
     ErrorReply,
+    InvalidField,
     KappaCommand,
     LearnerEpisode,
     LearnerState,
@@ -483,6 +484,7 @@ class Daemon:
             if query.weights is not None:
                 weights.update(query.weights)
             weights = dict(self.spec.check_weights(weights))
+            self._check_finite(weights)
             try:
                 theta, j, r = self.engine.select(query.kappa, weights)
             except NotEnoughData as exc:
@@ -496,6 +498,12 @@ class Daemon:
         return SelectReply(self.config.task, theta, j, r, j + query.kappa * r, query.kappa,
                            weights, query.adopt)
 
+    def _check_finite(self, weights: dict[str, float]) -> None:
+        try:
+            self.engine.check_weights(weights)
+        except ValueError as exc:
+            raise InvalidField("weights", str(exc)) from None
+
     def set_kappa(self, command: KappaCommand) -> None:
         with self._lock:
             self.store.record_change(self.run.run_id, "kappa", command.kappa, "control", self.n_updates)
@@ -507,6 +515,7 @@ class Daemon:
             weights = dict(self.engine.weights)
             weights.update(command.weights)
             weights = dict(self.spec.check_weights(weights, "weights"))
+            self._check_finite(weights)
             current = self.engine.weights
             self.engine.set_weights(weights)  # validates against the learner's terms first
             try:

@@ -210,6 +210,7 @@ BAD_QUERIES = [
     ("select", "kappa=1;weights=bogus:1", "bogus"),
     ("select", "kappa=1;weights=damage:-1", "damage"),
     ("select", "kappa=1;adopt=maybe", "adopt"),
+    ("select", "kappa=1;weights=body_acc_sq:1e308", "non-finite"),
     ("state", "verbose=1", "verbose"),
 ]
 
@@ -243,6 +244,7 @@ BAD_PUTS = [
     ("weights", b'{"v": 1, "type": "weights_command", "weights": {}}', "empty"),
     ("weights", b'{"v": 1, "type": "weights_command", "weights": {"damage": -3}}', "minimum"),
     ("weights", b"\xff\xfe", "UTF-8"),
+    ("weights", WeightsCommand({"body_acc_sq": 1e308}).to_json(), "non-finite"),
 ]
 
 
