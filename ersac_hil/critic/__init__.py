@@ -4,6 +4,7 @@ Pure numerics (numpy/scipy): no I/O, threads or sockets.  BLAS is pinned to one 
 inside every fit/predict call (see _blas.py).
 """
 
+from .bound import vhgp_bound
 from .errors import CriticError, CriticInputError, FitError, NotFittedError
 from .gp import GP, GPHyperparameters, GPPrediction
 from .local import CriticConfig, CriticData, CriticEstimate, LocalCritic, LocalFit
@@ -13,7 +14,6 @@ from .vhgp import (
     VHGPParams,
     VHGPPrediction,
     VHGPPredictionGradient,
-    vhgp_bound,
 )
 
 __all__ = [
