@@ -57,6 +57,8 @@ class EpisodeConfig:
         weights: per task, the cost weights of the reply's ``total_cost`` (default the
             contract's ``default_weights``; the learner re-weights the terms anyway).
         lifting_payload_kg: the bottle, for the balance reference and the LQR model.
+        strike_acc: bracing: a pitch acceleration above this [rad/s^2] is the strike; the
+            wheels are released (IMU noise is 0.5 rad/s^2, balancing stays below ~5).
         goal_tolerance_m, rest_speed_m_s, rest_s: the lifting end condition.
         go_timeout_s: how long to wait for the go signal without a test bench.
         testbench_wait_s, testbench_recent_s: how long to listen for the test bench's heartbeat
@@ -69,6 +71,7 @@ class EpisodeConfig:
     weights: Mapping[str, Mapping[str, float]] = field(
         default_factory=lambda: {name: dict(spec.default_weights) for name, spec in TASKS.items()})
     lifting_payload_kg: float = 1.0
+    strike_acc: float = 30.0
     goal_tolerance_m: float = 0.05
     rest_speed_m_s: float = 0.05
     rest_s: float = 0.25
@@ -219,7 +222,8 @@ class EpisodeRunner:
     def _loop(self, plan: Plan, run: _Run, commands: Commands, emcy_mark: int) -> None:
         bus, task = self.bus, plan.request.task
         payload = self.config.lifting_payload_kg if task == "lifting" else 0.0
-        ctl = BalanceController(self.design(task), self.config.robot, payload)
+        strike = self.config.strike_acc if task == "bracing" else None
+        ctl = BalanceController(self.design(task), self.config.robot, payload, strike_acc=strike)
         bus.reset_pacing()
         overruns0 = bus.overruns
         rest_needed = int(round(self.config.rest_s / bus.timing.period_s))
@@ -256,6 +260,8 @@ class EpisodeRunner:
             run.count("saturated_cycles", ctl.saturated_cycles)
             if ctl.fallen:
                 run.failures["fallen"] = True
+            if ctl.released_cycle is not None and run.samples:
+                run.truth["balance_released_s"] = (ctl.released_cycle - run.samples[0].cycle) * bus.timing.period_s
 
     def _at_goal(self, tel: Telemetry) -> bool:
         robot, cfg = self.config.robot, self.config

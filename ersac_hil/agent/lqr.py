@@ -141,17 +141,29 @@ class BalanceDesign:
 class BalanceController:
     """LQR balance at the SYNC rate (stateful: remembers where the episode started).
 
-    ``start(telemetry)`` at the first cycle, then ``torque(telemetry)`` every cycle.
+    ``start(telemetry)`` at the first cycle, then ``torque(telemetry)`` every cycle. The wheels
+    are released (zero torque for the rest of the episode, ``released`` says why) when the
+    pitch is more than ``fall_angle`` from the reference (``"fallen"``) or, with
+    ``strike_acc`` set, when the IMU's pitch acceleration exceeds it (``"strike"``: bracing,
+    where no wheel torque can stop the fall and a saturated LQR fighting the wheel chocks
+    only throws the robot about; docs/robot_model.md section 7).
     """
 
     def __init__(self, design: BalanceDesign, robot: RobotParameters = UBOT,
-                 payload: float = 0.0, fall_angle: float = 0.25) -> None:
+                 payload: float = 0.0, fall_angle: float = 0.25,
+                 strike_acc: float | None = None) -> None:
         self.design, self.robot, self.payload, self.fall_angle = design, robot, payload, fall_angle
+        self.strike_acc = strike_acc
         self.k = design.k.reshape(4)
         self.limit = robot.wheel_torque_limit
         self._psi0 = 0.0
-        self.fallen = False
+        self.released: str | None = None
+        self.released_cycle: int | None = None
         self.saturated_cycles = 0
+
+    @property
+    def fallen(self) -> bool:
+        return self.released == "fallen"
 
     def reference_pitch(self, tel: Telemetry) -> float:
         return self.robot.balance_pitch(tel.arm_positions("left"), tel.arm_positions("right"),
@@ -160,16 +172,23 @@ class BalanceController:
     def start(self, tel: Telemetry) -> None:
         """Hold the ground position of this sample."""
         self._psi0 = float(np.mean(tel.position[WHEELS_SLICE])) + tel.pitch
-        self.fallen = False
+        self.released = self.released_cycle = None
         self.saturated_cycles = 0
+
+    def _release(self, why: str, tel: Telemetry) -> tuple[float, float]:
+        self.released, self.released_cycle = why, tel.cycle
+        return (0.0, 0.0)
 
     def torque(self, tel: Telemetry) -> tuple[float, float]:
         """(left, right) wheel torque [N m] for this cycle."""
+        if self.released:
+            return (0.0, 0.0)
         alpha_ref = self.reference_pitch(tel)
         err_alpha = tel.pitch - alpha_ref
-        if self.fallen or abs(err_alpha) > self.fall_angle:
-            self.fallen = True
-            return (0.0, 0.0)
+        if abs(err_alpha) > self.fall_angle:
+            return self._release("fallen", tel)
+        if self.strike_acc is not None and abs(tel.pitch_acc) > self.strike_acc:
+            return self._release("strike", tel)
         phi = float(np.mean(tel.position[WHEELS_SLICE]))
         phid = float(np.mean(tel.velocity[WHEELS_SLICE]))
         x = np.array([phi - (self._psi0 - alpha_ref), err_alpha, phid, tel.pitch_rate])

@@ -86,5 +86,18 @@ def test_controller_saturates_and_releases_the_wheels_after_a_fall():
     assert left == right > 0  # lean forward: roll forward under the body
     assert ctl.torque(tel(upright + 0.2, 2.0))[0] == pytest.approx(UBOT.wheel_torque_limit)
     assert ctl.saturated_cycles == 1
-    assert ctl.torque(tel(upright + 0.3)) == (0.0, 0.0) and ctl.fallen
+    assert ctl.torque(tel(upright + 0.3)) == (0.0, 0.0) and ctl.fallen and ctl.released == "fallen"
     assert ctl.torque(tel(upright)) == (0.0, 0.0)  # stays released
+
+
+def test_bracing_controller_releases_the_wheels_at_the_strike():
+    ctl = BalanceController(design(), strike_acc=30.0)
+    pose = (0.0,) * 3 + IDLE_POSE * 2
+    upright = UBOT.balance_pitch(IDLE_POSE, IDLE_POSE)
+    tel = lambda acc, cycle: Telemetry(cycle, pose, (0.0,) * 7, (0.0,) * 7, (0.0,) * 7,
+                                       upright + 0.01, 0.0, acc, 0.0, 0.0, (1,) * 5)
+    ctl.start(tel(0.0, 1))
+    assert ctl.torque(tel(5.0, 2))[0] > 0  # balancing noise is not a strike
+    assert ctl.torque(tel(-400.0, 3)) == (0.0, 0.0)
+    assert ctl.released == "strike" and ctl.released_cycle == 3 and not ctl.fallen
+    assert ctl.torque(tel(0.0, 4)) == (0.0, 0.0)
