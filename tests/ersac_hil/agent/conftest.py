@@ -2,36 +2,12 @@
 on every available CAN backend, and an ``AgentBus`` connected to it."""
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import pytest
 
-
-def _unshadow_ersac_hil() -> None:
-    """With /work/main/tests on sys.path (rootdir conftest, prepend import mode) the directory
-    tests/ersac_hil is a namespace package that shadows the real ``ersac_hil``, and
-    tests/ersac_hil/agent shadows ``ersac_hil.agent`` (docs/requests.md asks for the central
-    fix). Re-import the real package; a no-op once the shadowing is gone."""
-    pkg = sys.modules.get("ersac_hil")
-    if pkg is None or getattr(pkg, "__file__", None):
-        return
-    root = str(Path(__file__).resolve().parents[3])
-    if root not in sys.path:
-        sys.path.append(root)
-    for name in [m for m in sys.modules if m == "ersac_hil" or m.startswith("ersac_hil.")]:
-        if getattr(sys.modules[name], "__file__", None) is None:
-            del sys.modules[name]
-    importlib.import_module("ersac_hil")
-
-
-_unshadow_ersac_hil()
-
-from ersac_hil.agent.bus import AgentBus  # noqa: E402
-from firmware_sim.nodes import SlaveNode  # noqa: E402
-from protocol.can.bench import BENCH  # noqa: E402
-from protocol.can.busconfig import open_network  # noqa: E402
+from ersac_hil.agent.bus import AgentBus
+from firmware_sim.nodes import SlaveNode
+from protocol.can.bench import BENCH
+from protocol.can.busconfig import open_network
 
 
 class ReferenceBench:
