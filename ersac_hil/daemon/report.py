@@ -126,7 +126,8 @@ def _critic_plot(path: Path, run: RunRecord, episodes: list[EpisodeRecord], engi
     ax.plot(x, y, "o", ms=4, color="tab:blue", alpha=0.7, label="cost observations")
     ax.fill_between(grid, J - 2 * r, J + 2 * r, color="tab:green", alpha=0.2, label="J~ +/- 2 r~")
     ax.plot(grid, J, "-", color="tab:green", lw=2, label="critic mean J~")
-    ax.plot(grid, J + kappa * r, "--", color="tab:purple", lw=1.5, label=f"F~ = J~ + {kappa:g} r~")
+    if kappa != 0:
+        ax.plot(grid, J + kappa * r, "--", color="tab:purple", lw=1.5, label=f"F~ = J~ + {kappa:g} r~")
     ax.axvline(final_theta[0], color="tab:red", lw=2, zorder=5, label=f"final theta = {final_theta[0]:.3f}")
     pad = 0.02 * (hi - lo)
     ax.set_xlim(lo - pad, hi + pad)
