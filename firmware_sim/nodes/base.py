@@ -197,6 +197,10 @@ class SlaveNode(canopen.LocalNode):
         """Telemetry/application value of an object (what SDO uploads and TPDOs carry)."""
         self._values[(index, subindex)] = raw
 
+    def received(self, index: int, subindex: int = 0) -> int | None:
+        """The application value of an object if one was set or received, else ``None``."""
+        return self._values.get((index, subindex))
+
     def value(self, index: int, subindex: int = 0) -> int | float | str:
         """Current value: application state, else downloaded data, else the EDS default."""
         key = (index, subindex)

@@ -23,6 +23,10 @@ from protocol.can.sdo import AbortCode
 if TYPE_CHECKING:
     from firmware_sim.nodes.simbench import SimulatedBench
 
+_ACTUAL_VALUES = frozenset({Index.POSITION, Index.VELOCITY, Index.CURRENT, Index.VOLTAGE, Index.PITCH,
+                            Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
+                            Index.ACCELERATION_Z})
+
 SCENARIO_NAMES = {o.Scenario.IDLE: "idle", o.Scenario.BRACING: "bracing", o.Scenario.LIFTING: "lifting"}
 
 
@@ -125,6 +129,10 @@ class DeviceApp(NodeApplication):
         if index == Index.STATUS:
             with self.bench.lock:
                 return int(self.status())
+        if index in _ACTUAL_VALUES:  # a drive answers with the present value, not the last TPDO
+            with self.bench.lock:
+                self.sample()
+            return None
         if index == Index.CURRENT_LIMIT and self.board is not None and sub:
             return o.CURRENT_LIMIT.to_raw(self.board.current_limit(self.device.joints[sub - 1]))
         return None
@@ -151,18 +159,27 @@ class JointApp(DeviceApp):
         return self.bench.sim.controller(self.device.name)
 
     def on_commands(self, changed: dict[Key, int]) -> None:
+        """Control word first (enabling holds the present pose), then the setpoints of the
+        same RPDO, then a spline start: a setpoint sent with the first ENABLE takes effect."""
+        word = changed.get((Index.CONTROL, 0))
+        start = enabling = False
+        if word is not None:
+            rising = Control(word) & ~self.control
+            start, enabling = bool(rising & Control.START_SPLINE), bool(rising & Control.ENABLE)
+            self._on_control(Control(word & 0x7))
+        if enabling:  # the setpoints received with (or before) the enabling RPDO apply now
+            for sub in range(1, len(self.device.joints) + 1):
+                raw = self.node.received(Index.POSITION_SETPOINT, sub)
+                if raw is not None:
+                    changed = {**changed, (Index.POSITION_SETPOINT, sub): raw}
         for (index, sub), raw in changed.items():
             if index == Index.POSITION_SETPOINT:
                 self.board.set_setpoint(self.device.joints[sub - 1], o.POSITION.from_raw(raw))
-        word = changed.get((Index.CONTROL, 0))
-        if word is not None:
-            start = Control(word) & Control.START_SPLINE and not self.control & Control.START_SPLINE
-            self._on_control(Control(word & 0x7))
-            if start:
-                try:
-                    self.board.start_spline()
-                except ConfigStateError:
-                    pass  # status shows SPLINE_ACTIVE never rising; the agent checks it
+        if start:
+            try:
+                self.board.start_spline()
+            except ConfigStateError:
+                pass  # SPLINE_ACTIVE never rises in the status word; the agent checks it
 
     def sample(self) -> None:
         super().sample()

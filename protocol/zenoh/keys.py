@@ -36,6 +36,7 @@ DEFAULT_PREFIX = "ersac"
 
 _SUFFIXES = {
     "agent_alive": "agent/alive",
+    "agent_go": "agent/go",
     "episode_run": "episode/run",
     "episode_done": "episode/done",
     "learner_state": "learner/state",
@@ -105,6 +106,11 @@ class KeySpace:
     def agent_alive(self) -> str:
         """Liveliness token of the agent."""
         return self._key("agent_alive")
+
+    @property
+    def agent_go(self) -> str:
+        """Put by a person who reset a robot without a test bench: the agent may start."""
+        return self._key("agent_go")
 
     @property
     def episode_run(self) -> str:

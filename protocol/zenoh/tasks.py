@@ -151,7 +151,7 @@ TASKS: Mapping[str, TaskSpec] = MappingProxyType(
                 "shoulder_1", "elbow_1", "shoulder_2", "elbow_2",
                 "duration_1", "duration_2", "duration_3",
             ),
-            lower=(-_PI / 2, 0.0, -_PI / 2, 0.0, 0.2, 0.2, 0.2),
+            lower=(-1.0, 0.0, -1.0, 0.0, 0.2, 0.2, 0.2),
             upper=(_PI, 2.5, _PI, 2.5, 2.0, 2.0, 2.0),
             term_names=(
                 "x_wheel_sq", "xdot_wheel_sq", "alpha_sq", "alphadot_sq", "h_error_sq", "power",

@@ -161,3 +161,29 @@ def test_same_seed_same_commands_bit_identical_telemetry(rig):
     assert per_cob(a) == per_cob(b)
     c = _episode_frames(rig, seed=6, cycles=80)
     assert per_cob(a) != per_cob(c)
+
+
+def test_actual_values_by_sdo_are_live_before_any_sync(rig):
+    bench, net, nodes = rig
+    reset(nodes, o.Scenario.BRACING, 2)
+    arm = nodes[ARM_LEFT.name].sdo
+    shoulder = o.POSITION.from_raw(arm[Index.POSITION][1].raw)
+    assert shoulder == pytest.approx(bench.sim.axis("shoulder_left").position, abs=2e-4)
+    assert shoulder != 0.0
+    pitch = o.PITCH.from_raw(nodes["imu"].sdo[Index.PITCH].raw)
+    assert pitch == pytest.approx(bench.sim.imu().pitch, abs=2e-4)
+
+
+def test_setpoint_sent_with_the_enabling_rpdo_takes_effect(rig):
+    bench, net, nodes = rig
+    reset(nodes, o.Scenario.IDLE, 1)
+    arm = nodes[ARM_LEFT.name]
+    arm.rpdo.read(from_od=True)
+    net.nmt.state = "OPERATIONAL"
+    time.sleep(0.05)
+    target = bench.sim.axis("shoulder_left").position + 0.3
+    elbow = o.POSITION.to_raw(bench.sim.axis("elbow_left").position)
+    rec = Recorder(net)
+    send(arm.rpdo.map[1], o.POSITION.to_raw(target), elbow, int(Control.ENABLE))
+    sync_and_wait(net, rec, N_TPDO)
+    assert bench.sim.controller("arm_left").setpoint("shoulder_left") == pytest.approx(target, abs=1e-3)

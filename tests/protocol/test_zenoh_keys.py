@@ -15,6 +15,7 @@ prefixes = st.lists(chunks, min_size=1, max_size=3).map("/".join)
 
 EXPECTED_SUFFIXES = {
     "agent_alive": "agent/alive",
+    "agent_go": "agent/go",
     "episode_run": "episode/run",
     "episode_done": "episode/done",
     "learner_state": "learner/state",
