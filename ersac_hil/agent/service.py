@@ -30,8 +30,8 @@ from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
 from ersac_hil.zenoh_session import make_config, open_session
 from protocol.can.busconfig import BusConfig
-from protocol.zenoh import (EpisodeDone, EpisodeRequest, ErrorReply, InvalidField, KeySpace,
-                            PayloadError)
+from protocol.zenoh import (EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, InvalidField,
+                            KeySpace, PayloadError)
 
 log = logging.getLogger(__name__)
 
@@ -167,27 +167,37 @@ class AgentService:
                 return
             query, plan = item
             try:
-                self._serve(query, plan)
+                outcome = self._run(plan)
             finally:
+                # free before answering: a client may send its next request the moment it
+                # has the reply, and must not find the agent busy with this one
                 self._busy.release()
+            self._answer(query, plan, outcome)
 
-    def _serve(self, query: zenoh.Query, plan) -> None:
+    def _run(self, plan) -> EpisodeResult | ErrorReply:
         try:
             result = self.runner.run(plan)  # type: ignore[union-attr]
         except RequestRefused as exc:
-            return self._refuse(query, ErrorReply.from_exception(exc, exc.code))
+            return ErrorReply.from_exception(exc, exc.code)
         except Exception as exc:
             log.exception("episode %s failed", plan.request.episode_id)
-            return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
+            return ErrorReply.from_exception(exc, "internal")
         self.episodes += 1
         log.info("episode %s %s: %s cost %s in %.2f s", plan.request.episode_id, plan.request.task,
                  result.status, result.total_cost, result.wall_s)
+        return result
+
+    def _answer(self, query: zenoh.Query, plan, outcome: EpisodeResult | ErrorReply) -> None:
+        if isinstance(outcome, ErrorReply):
+            return self._refuse(query, outcome)
         try:
-            query.reply(self.keys.episode_run, result.to_json())
+            query.reply(self.keys.episode_run, outcome.to_json())
+        except Exception as exc:  # the querier may be gone; the episode still counts
+            log.warning("reply to %s not sent: %s", plan.request.episode_id, exc)
         finally:
             query.drop()
         try:
-            done = EpisodeDone(self.keys.robot, time.time(), plan.request, result)
+            done = EpisodeDone(self.keys.robot, time.time(), plan.request, outcome)
             self._publisher.put(done.to_json())  # type: ignore[union-attr]
         except Exception as exc:  # publication is best effort; the reply went out
             log.warning("episode/done not published: %s", exc)
