@@ -18,9 +18,11 @@ Episode loop, for learner episode ``idx`` (= number of updates so far):
    Anything else (fault status, timeout, lost agent, refusal, bad reply): commit the attempt
    with its status (never told to the learner) and retry the same request with a new episode
    id after a backoff (doubling from ``backoff_s[0]`` up to ``backoff_s[1]``). After
-   ``max_attempts`` failed attempts of one request, or at once on ``invalid_request`` /
-   ``unknown_task`` refusals (a contract mismatch retrying cannot fix), the run is marked
-   ``failed``.
+   ``max_attempts`` failed attempts of one request, or at once on an ``unknown_task``
+   refusal, the run is marked ``failed``. An ``invalid_request`` refusal means the agent will
+   not execute these parameters (e.g. a spline outside the joint limits): the perturbation is
+   discarded and a new one drawn around the same policy mean (at most ``MAX_REDRAWS`` in a
+   row; the refusal is deterministic, so a resumed run redraws exactly the same way).
 """
 from __future__ import annotations
 
@@ -68,7 +70,8 @@ log = logging.getLogger(__name__)
 EXIT_FAILED = 3
 #: Exit status when the agent stayed absent longer than ``agent_wait_s`` (run resumable).
 EXIT_NO_AGENT = 4
-_FATAL_CODES = ("invalid_request", "unknown_task")
+#: Perturbations of one episode the agent may refuse (``invalid_request``) before the run fails.
+MAX_REDRAWS = 20
 #: How long an early-ended query waits for the agent's liveliness token to disappear.
 _LOST_GRACE_S = 1.0
 
@@ -349,7 +352,7 @@ class Daemon:
         seed = scenario_seed(self.run.seed, idx)
         attempts = self.store.attempts_of(self.run.run_id, idx)
         attempt = attempts[-1].attempt + 1 if attempts else 0
-        failures = 0
+        failures = redraws = 0
         backoff = self.config.backoff_s[0]
         budget = self.run.settings["episodes"]
         while True:
@@ -371,10 +374,23 @@ class Daemon:
             self._publish(idx, request, outcome.result, proposal, None)
             if outcome.status == "interrupted":
                 raise _Stopped
-            failures += 1
             attempt += 1
-            if outcome.code in _FATAL_CODES:
+            if outcome.code == "unknown_task":
                 raise RunFailed(f"agent refused episode {eid}: {outcome.code}: {outcome.detail}")
+            if outcome.code == "invalid_request":
+                # the agent refuses these parameters (e.g. a spline outside the joint limits):
+                # they are infeasible; draw a new perturbation around the same policy mean
+                redraws += 1
+                if redraws > MAX_REDRAWS:
+                    raise RunFailed(f"episode {idx + 1}: the agent refused {redraws} perturbations in "
+                                    f"a row, last: {outcome.detail}")
+                with self._lock:
+                    self.engine.discard()
+                    proposal = self.engine.propose()
+                self._print(f"episode {idx + 1:4d} attempt {attempt}: refused ({outcome.detail[:200]}) "
+                            "- drawing a new perturbation")
+                continue
+            failures += 1
             if failures >= self.config.max_attempts:
                 raise RunFailed(f"episode {idx + 1}: {failures} failed attempts, last {outcome.status}: "
                                 f"{outcome.detail}")

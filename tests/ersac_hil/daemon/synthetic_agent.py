@@ -59,11 +59,15 @@ class SyntheticAgent:
         delay_s: wall time each episode takes.
         fault_every: seeds divisible by this get a fault on their first attempt (0: never).
         always_fault: every episode ends with a fault.
+        refuse_above: requests with theta[0] above this get ``reply_err`` ``invalid_request``
+            (like the real agent refusing a spline outside the joint limits).
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, delay_s: float = 0.0,
-                 fault_every: int = 0, always_fault: bool = False) -> None:
+                 fault_every: int = 0, always_fault: bool = False,
+                 refuse_above: float = math.inf) -> None:
         self.keys = keys
+        self.refuse_above = refuse_above
         self.always_fault = always_fault
         self.delay_s = delay_s
         self.fault_every = fault_every
@@ -78,6 +82,10 @@ class SyntheticAgent:
             request = EpisodeRequest.from_json(query.payload if query.payload is not None else b"")
         except PayloadError as exc:
             query.reply_err(ErrorReply.from_exception(exc).to_json())
+            return
+        if request.theta[0] > self.refuse_above:
+            query.reply_err(ErrorReply("invalid_request", f"theta[0] = {request.theta[0]!r} above the "
+                                       f"safe limit {self.refuse_above!r}").to_json())
             return
         if not self._lock.acquire(blocking=False):
             query.reply_err(ErrorReply("busy", "an episode is running").to_json())

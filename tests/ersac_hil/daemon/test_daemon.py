@@ -15,7 +15,7 @@ import pytest
 from conftest import HERE, wait_until
 from ersac_hil.daemon.clients import LearnerClient
 from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
-from ersac_hil.daemon.service import EXIT_FAILED, open_run, scenario_seed
+from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS, open_run, scenario_seed
 from ersac_hil.daemon.store import Store
 from protocol.zenoh import KeySpace
 
@@ -136,6 +136,32 @@ def test_failed_episodes_are_retried_then_the_run_fails(router, agent_factory, d
     assert len(agent.requests) == 3
 
 
+def test_refused_parameters_are_redrawn(router, agent_factory, daemon_factory):
+    agent_factory("lim", refuse_above=0.9)
+    daemon = daemon_factory("lim", episodes=8, theta0=(0.88,), sigma=(0.05,))
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    with Store(daemon.config.db, readonly=True) as store:
+        attempts = store.attempts(daemon.run.run_id)
+    refused = [a for a in attempts if a.status == "refused"]
+    ok = [a for a in attempts if a.ok]
+    assert refused and len(ok) == 8
+    assert all(a.theta[0] > 0.9 and "invalid_request" in a.detail for a in refused)
+    assert all(a.theta[0] <= 0.9 for a in ok)
+    for a in refused:  # the same episode is served by a new perturbation of the same mean
+        served = next(o for o in ok if o.idx == a.idx)
+        assert served.base_theta == a.base_theta and served.theta != a.theta
+        assert served.seed == a.seed and served.attempt > a.attempt
+
+
+def test_an_agent_refusing_everything_fails_the_run(router, agent_factory, daemon_factory):
+    agent_factory("nope", refuse_above=-1.0)
+    daemon = daemon_factory("nope", episodes=3)
+    assert daemon.finished.wait(60) and daemon.exit_code == EXIT_FAILED
+    with Store(daemon.config.db, readonly=True) as store:
+        assert len(store.attempts(daemon.run.run_id, "refused")) == MAX_REDRAWS + 1
+        assert "refused 21 perturbations" in store.run(daemon.run.run_id).detail
+
+
 # --------------------------------------------------------------------------- resume
 def _daemon_cmd(router, db: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "ersac_hil.cli", "daemon", "--robot", "res", "--zenoh", router.endpoint,
@@ -153,7 +179,7 @@ def _ok_history(db: Path):
 
 def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path):
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    agent_factory("res", delay_s=0.1, fault_every=5)
+    agent_factory("res", delay_s=0.1, fault_every=5, refuse_above=0.6)  # faults and redraws
     reference = tmp_path / "ref.db"
     done = subprocess.run(_daemon_cmd(router, reference), env=env, cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
@@ -175,8 +201,9 @@ def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert "resumed at episode" in resumed.stdout and "interrupted attempt" in resumed.stdout
 
-    ref_run, ref_eps, ref_updates, _ = _ok_history(reference)
+    ref_run, ref_eps, ref_updates, ref_attempts = _ok_history(reference)
     run, eps, updates, attempts = _ok_history(killed)
+    assert any(a.status == "refused" for a in ref_attempts)  # the redraw path was exercised
     assert run.status == "finished" and run.seed == ref_run.seed
     assert [e[0] for e in eps] == list(range(14))  # no episode lost, none duplicated
     assert eps == ref_eps  # same requests (theta, seed), same costs
