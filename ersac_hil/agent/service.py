@@ -35,10 +35,6 @@ from protocol.zenoh import (EpisodeDone, EpisodeRequest, EpisodeResult, ErrorRep
 
 log = logging.getLogger(__name__)
 
-GO_SUFFIX = "agent/go"
-"""Key (under ``<prefix>/<robot>``) of the go signal; not yet in ``protocol.zenoh.KeySpace``."""
-
-
 @dataclass(frozen=True)
 class AgentConfig:
     """Everything ``ersac-hil agent`` is started with.
@@ -97,7 +93,7 @@ class AgentService:
         self._publisher = s.declare_publisher(self.keys.episode_done)
         self._entities = [
             self._publisher,
-            s.declare_subscriber(f"{self.keys.root}/{GO_SUFFIX}", lambda sample: self._go.set()),
+            s.declare_subscriber(self.keys.agent_go, lambda sample: self._go.set()),
             s.declare_queryable(self.keys.episode_run, self._on_query),
             s.liveliness().declare_token(self.keys.agent_alive),
         ]
@@ -205,7 +201,6 @@ class AgentService:
     def _wait_go(self, timeout_s: float) -> bool:
         """The runner's go signal (no test bench): wait for a put on ``agent/go``."""
         self._go.clear()
-        log.warning("no test bench: reset the robot, then put anything on %s/%s",
-                    self.keys.root, GO_SUFFIX)
+        log.warning("no test bench: reset the robot, then put anything on %s", self.keys.agent_go)
         ok = self._go.wait(timeout_s)
         return ok and not (self.runner is not None and self.runner.stop_requested.is_set())

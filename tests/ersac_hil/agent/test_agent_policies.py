@@ -74,7 +74,7 @@ def test_violent_or_unreachable_splines_are_refused():
     with pytest.raises(LimitViolation, match="velocity limit"):
         p.spline((3.0, 0.2, 0.0, 2.4, 0.2, 0.2, 0.2))
     with pytest.raises(LimitViolation, match="shoulder reaches .* outside its range"):
-        p.spline((-1.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0))
+        p.spline((-1.0, 1.0, -0.9, 1.0, 0.5, 0.5, 0.5))  # overshoots past the waypoint at the stop
     with pytest.raises(InvalidField):
         p.spline(SENSIBLE[:6])
 

@@ -20,6 +20,7 @@ from protocol.zenoh import EpisodeDone, EpisodeRequest, EpisodeResult, ErrorRepl
 
 pytestmark = pytest.mark.timeout(120)
 ROBOT = "ubot-test"
+ROBOT_NAME_GO = "ubot-nobench"
 KS = KeySpace(ROBOT)
 SENSIBLE_LIFT = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
 
@@ -146,8 +147,8 @@ INVALID = [
     (_raw({"episode_id": "e4", "task": "bracing", "theta": [1.5], "seed": 1}), "outside [0.0, 1.0]"),
     (_raw({"episode_id": "e5", "task": "lifting", "theta": [3.0, 0.2, 0.0, 2.4, 0.2, 0.2, 0.2], "seed": 1}),
      "velocity limit"),
-    (_raw({"episode_id": "e6", "task": "lifting", "theta": [-1.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], "seed": 1}),
-     "outside its range"),
+    (_raw({"episode_id": "e6", "task": "lifting", "theta": [-1.0, 1.0, -0.9, 1.0, 0.5, 0.5, 0.5], "seed": 1}),
+     "shoulder reaches -1.002 rad"),  # knots inside the box, the spline overshoots the joint stop
     (b"not json", "not valid JSON"),
     (b"", "not valid JSON"),
 ]
@@ -207,3 +208,31 @@ def test_killing_the_simulator_mid_episode_is_a_fault_within_a_second():
                 assert sum(result.fault_counts.values()) >= 1
         finally:
             stop(sim)
+
+
+def test_without_a_test_bench_the_agent_waits_for_the_go_signal():
+    from firmware_sim.nodes.simbench import SimulatedBench
+    from protocol.can.bench import ROBOT
+    from protocol.can.busconfig import BusConfig
+
+    bus = BusConfig("virtual", f"go-{uuid.uuid4().hex[:8]}")
+    with SimulatedBench(bus, devices=ROBOT), EmbeddedRouter() as router:
+        config = AgentConfig(robot=ROBOT_NAME_GO, bus=bus, zenoh_connect=(router.endpoint,))
+        with AgentService(config) as agent, router.open_client() as session:
+            keys = KeySpace(ROBOT_NAME_GO)
+            deadline = time.monotonic() + 10
+            while not list(session.liveliness().get(keys.agent_alive, timeout=1)) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            replies: list = []
+            t = threading.Thread(target=lambda: replies.extend(session.get(
+                keys.episode_run, payload=request("bracing", (0.5,)), timeout=30)))
+            t.start()
+            time.sleep(0.8)
+            assert not replies and t.is_alive()  # waiting for the person who reset the robot
+            session.put(keys.agent_go, b"go")
+            t.join(timeout=30)
+            result = EpisodeResult.from_json(replies[0].ok.payload)
+            assert result.status == "ok" and result.telemetry["n_cycles"] == 400
+            assert "bench_impact_momentum_ns" not in result.telemetry  # no test bench to ask
+            assert agent.episodes == 1
+
