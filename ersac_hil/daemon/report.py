@@ -174,7 +174,7 @@ def write_report(db: str | Path, run_id: str, out: str | Path) -> dict[str, Any]
     Raises:
         StoreError / RunNotFound: no such store or run.
     """
-    from .service import rebuild_engine  # the learner is rebuilt exactly as the daemon would
+    from .runs import rebuild_engine  # the learner is rebuilt exactly as the daemon would
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

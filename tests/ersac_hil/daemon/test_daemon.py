@@ -15,7 +15,8 @@ import pytest
 from conftest import HERE, wait_until
 from ersac_hil.daemon.clients import LearnerClient
 from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
-from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS, open_run, scenario_seed
+from ersac_hil.daemon.runs import open_run, scenario_seed
+from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS
 from ersac_hil.daemon.store import Store
 from protocol.zenoh import KeySpace
 
@@ -248,5 +249,5 @@ def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp
     assert proc.returncode == 128 + signal.SIGTERM, out
     with Store(db, readonly=True) as store:
         (run,) = store.runs()
-        assert [a.status for a in store.attempts(run.run_id)] == ["interrupted"]
+        assert [a.status for a in store.attempts(run.run_id)] == ["interrupted"], out
         assert run.status == "running"  # resumable

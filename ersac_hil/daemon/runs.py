@@ -1,0 +1,108 @@
+"""Runs: open a new run or resume one, rebuild the learner from the store, derived seeds and ids.
+
+Resume rules (:func:`open_run`): ``resume="latest"`` takes the latest ``running`` run of the
+robot and task (else a new run), ``"new"`` always starts one, a run id picks that run. A
+resumed run keeps its stored learner settings; explicitly given learner settings that differ
+are refused, so a changed command line never silently continues an old run.
+
+Rebuild (:func:`rebuild_engine`): the learner exactly as it was after the last committed
+update (see ``engine.Engine.restore``); together with the derived scenario seeds
+(:func:`scenario_seed`) a resumed daemon sends exactly the requests an uninterrupted one would.
+"""
+from __future__ import annotations
+
+import secrets
+import time
+
+import numpy as np
+
+from .config import LEARNER_FIELDS, RESUME_LATEST, RESUME_NEW, ConfigError, DaemonConfig
+from .engine import Engine
+from .store import RunNotFound, RunRecord, Store
+
+__all__ = ["scenario_seed", "episode_id", "new_run_id", "open_run", "rebuild_engine"]
+
+
+def scenario_seed(run_seed: int, idx: int) -> int:
+    """The scenario seed of learner episode ``idx`` (uint32), a pure function of both."""
+    return int(np.random.SeedSequence([run_seed, 1, idx]).generate_state(1, np.uint32)[0])
+
+
+def episode_id(run_id: str, idx: int, attempt: int) -> str:
+    """``<run_id>.<idx:05d>.<attempt>``: unique per attempt."""
+    return f"{run_id}.{idx:05d}.{attempt}"
+
+
+def new_run_id() -> str:
+    return time.strftime("%Y%m%dT%H%M%S") + "-" + secrets.token_hex(3)
+
+
+def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfig, bool]:
+    """Open the run ``config.resume`` asks for: ``(run, effective config, resumed)``.
+
+    A resumed run keeps its stored learner settings; explicitly given learner settings that
+    differ are refused (``ConfigError``), so a changed command line never silently continues
+    an old run. ``episodes`` may be changed on resume (a new total budget).
+    """
+    run: RunRecord | None = None
+    if config.resume == RESUME_LATEST:
+        run = store.latest_unfinished(config.robot, config.task)
+    elif config.resume != RESUME_NEW:
+        try:
+            run = store.run(config.resume)
+        except RunNotFound as exc:
+            raise ConfigError(str(exc)) from None
+        if (run.robot, run.task) != (config.robot, config.task):
+            raise ConfigError(f"run {run.run_id} is {run.task!r} on {run.robot!r}, not "
+                              f"{config.task!r} on {config.robot!r}")
+    if run is None:
+        seed = config.seed if config.seed is not None else secrets.randbits(62)
+        settings = {**config.learner_settings(), "seed": seed}
+        settings["episodes"] = config.episodes_or_default
+        run = store.create_run(new_run_id(), config.robot, config.task, seed, settings)
+        return run, config.with_learner_settings(run.settings), False
+    stored = dict(run.settings)
+    given = config.learner_settings()
+    conflicts = [k for k in LEARNER_FIELDS if k in config.explicit and given[k] != stored.get(k)]
+    if conflicts:
+        detail = ", ".join(f"{k}={stored.get(k)!r} (given {given[k]!r})" for k in conflicts)
+        raise ConfigError(
+            f"run {run.run_id} was started with {detail}; pass --new for a new run "
+            "(kappa and weights can be changed at run time over the control plane)")
+    effective = config.with_learner_settings(stored)
+    if config.episodes is not None and config.episodes != stored.get("episodes"):
+        stored["episodes"] = config.episodes
+    if run.status != "running" or stored != run.settings:
+        store.set_run_status(run.run_id, "running", settings=stored)
+        run = store.run(run.run_id)
+    return run, effective, True
+
+
+def rebuild_engine(store: Store, run: RunRecord) -> Engine:
+    """The learner exactly as it was after the run's last committed update.
+
+    Re-adds every ok episode (executed theta, cost terms), applies the latest kappa and
+    weights, restores theta (the last update's, or a selection adopted after it) and the
+    learner's state (RNG...) stored with the last update.
+    """
+    s = run.settings
+    weights_change = store.latest_change(run.run_id, "weights")
+    kappa_change = store.latest_change(run.run_id, "kappa")
+    theta_change = store.latest_change(run.run_id, "theta")
+    last = store.last_update(run.run_id)
+    episodes = store.ok_episodes(run.run_id)
+    n = 0 if last is None else last.idx + 1
+    if len(episodes) != n or any(e.idx != i for i, e in enumerate(episodes)):
+        raise RuntimeError(f"run {run.run_id}: ok episodes {[e.idx for e in episodes]} do not match "
+                           f"{n} updates")
+    theta = tuple(s["theta0"]) if last is None else last.theta_after
+    if theta_change is not None and theta_change.n_updates >= n:
+        theta = tuple(theta_change.value)
+    return Engine.restore(
+        run.task, s,
+        observations=[(e.theta, e.cost_terms) for e in episodes],
+        kappa=float(kappa_change.value) if kappa_change else float(s["kappa"]),
+        weights=dict(weights_change.value) if weights_change else dict(s["weights"]),
+        theta=theta,
+        state=None if last is None else dict(last.state),
+    )
