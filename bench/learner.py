@@ -309,7 +309,8 @@ def _fmt(hits: list[int | None], budget: int) -> str:
     if len(ok) * 2 <= len(hits):
         return f"  >{budget} ({len(ok)}/{len(hits)})"
     arr = np.array([h if h is not None else np.inf for h in hits], dtype=float)
-    q1, med, q3 = np.percentile(arr, [25, 50, 75])
+    with np.errstate(invalid="ignore"):  # inf (not reached) entries are fine for order statistics
+        q1, med, q3 = np.percentile(arr, [25, 50, 75])
     q3s = f"{q3:.0f}" if np.isfinite(q3) else ">"
     return f"{med:4.0f} [{q1:.0f}-{q3s}] {len(ok)}/{len(hits)}"
 
@@ -318,6 +319,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="reduced run (< 1 min)")
     ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--only", choices=["table", "timing"], default=None, help="run one part only")
     args = ap.parse_args()
     seeds = args.seeds or (4 if args.quick else 20)
     problems = ["1d-bracing"] if args.quick else list(PROBLEMS)
@@ -327,6 +329,9 @@ def main() -> None:
         print(f"BLAS pinned to 1 thread via threadpoolctl in every process: {blas_description()}")
         print(f"{os.cpu_count()} CPUs; seeds run in 2 worker processes; load average at start "
               f"{' '.join(f'{v:.1f}' for v in os.getloadavg())} (other processes share the machine)")
+    if args.only == "timing":
+        timing(args.quick)
+        return
     jobs = [(pn, m, k, s) for pn in problems for k in KAPPAS for m in METHODS for s in range(seeds)]
     with mp.get_context("fork").Pool(2) as pool:
         results = pool.map(_job, jobs, chunksize=1)
@@ -369,7 +374,8 @@ def main() -> None:
             q = lambda v: f"{np.nanmedian(v):5.2f} [{np.nanpercentile(v, 25):.2f}, {np.nanpercentile(v, 75):.2f}]"  # noqa: E731
             print(f"{pn:>10} kappa={k:4.0f}: r~/r {q(rr)}   slope ratio {q(sr)}   J~-J {q(je)}")
 
-    timing(args.quick)
+    if args.only is None:
+        timing(args.quick)
     print(f"\ntotal wall time {time.perf_counter() - t0:.0f} s; load average at the end "
           f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
 
