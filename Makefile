@@ -25,7 +25,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python bench/learner.py
+	$(BIN)/python bench/learner.py --quick
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/episode.py
 
