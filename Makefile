@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/learner.py --quick
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/episode.py
+	$(BIN)/python bench/bracing_sweep.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
