@@ -181,27 +181,12 @@ class Engine:
 
     def adopt(self, theta: Sequence[float]) -> None:
         """Make ``theta`` the policy mean (no pending proposal allowed)."""
-        if self._learner.pending is not None:
-            raise RuntimeError("cannot adopt a theta while a proposal is pending")
-        self._rebuild(theta=[float(v) for v in theta])
+        self._learner.theta = [float(v) for v in theta]
 
     def discard(self) -> None:
         """Forget the pending proposal (the agent refused its parameters): the next
         :meth:`propose` draws a new perturbation from the RNG, which has moved on."""
-        if self._learner.pending is not None:
-            self._rebuild(pending=None)
-
-    def _rebuild(self, **changes: Any) -> None:
-        """ERSAC has no setters for theta or the pending ask: rebuild it from its own state
-        with ``changes`` and re-observe its observations (exact: same RNG, same critic fit)."""
-        store = self._learner.store
-        names = store.weights.names
-        observations = [(x, dict(zip(names, row))) for x, row in zip(store.points, store.terms)]
-        state = {**self._learner.get_state(), **changes}
-        learner = ERSAC.from_state(state)
-        for x, terms in observations:
-            learner.observe(np.array(x), terms)
-        self._learner = learner
+        self._learner.discard()
 
     # ------------------------------------------------------------------ critic / selection
     def critic(self, points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:

@@ -43,6 +43,10 @@ class NoPendingAskError(ProtocolError):
     """tell() without a pending ask()."""
 
 
+class PendingAskError(ProtocolError):
+    """An operation that needs no pending ask() (setting theta) while one is pending."""
+
+
 class PendingMismatchError(ProtocolError):
     """tell() with parameters other than the pending ask()'s."""
 

@@ -52,6 +52,7 @@ from .errors import (
     InvalidKappaError,
     LearnerError,
     NoPendingAskError,
+    PendingAskError,
     OutOfBoundsError,
     PendingMismatchError,
     StateError,
@@ -214,6 +215,23 @@ class ERSAC:
     def theta(self) -> np.ndarray:
         """Current policy parameters, (d,) (a copy)."""
         return self._theta.copy()
+
+    @theta.setter
+    def theta(self, value: object) -> None:
+        """Adopt new policy parameters (an offline selection, an operator's choice).
+
+        Refused (``PendingAskError``) while an ask() awaits its tell(): the pending
+        perturbation was drawn around the old theta. Out-of-bounds or non-finite values raise
+        and change nothing."""
+        theta = self._check_params(value, "theta")
+        if self._pending is not None:
+            raise PendingAskError("cannot set theta while an ask() awaits its tell(); discard() it first")
+        self._theta = theta
+
+    def discard(self) -> None:
+        """Forget the pending ask() (its parameters could not be executed). The RNG is not
+        rewound: the next ask() draws a new perturbation, deterministically from the seed."""
+        self._pending = None
 
     @property
     def kappa(self) -> float:

@@ -314,3 +314,21 @@ def test_critic_query_and_weighted_costs() -> None:
     assert (e.J, e.r) == (Jt, rt) and e.F == pytest.approx(Jt + 2.0 * rt)
     with pytest.raises(MissingTermError):
         L.tell(L.ask(), 1.0)  # a bare number needs single-term weights
+
+
+def test_theta_setter_and_discard():
+    from ersac_hil.learner import PendingAskError
+    lrn = ERSAC([0.5], [0.1], 0.1, 0.0, 0.3, [[0.0, 1.0]], seed=3)
+    lrn.theta = [0.2]
+    assert lrn.theta.tolist() == [0.2]
+    with pytest.raises(OutOfBoundsError):
+        lrn.theta = [1.5]
+    assert lrn.theta.tolist() == [0.2]
+    first = lrn.ask()
+    with pytest.raises(PendingAskError):
+        lrn.theta = [0.4]
+    assert lrn.theta.tolist() == [0.2]
+    lrn.discard()
+    assert lrn.pending is None
+    second = lrn.ask()
+    assert second.tolist() != first.tolist()  # a fresh draw, the RNG moved on
