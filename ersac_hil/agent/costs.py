@@ -8,8 +8,8 @@ bracing:
     damage       [1]        1.0 if an elbow cable broke (status CABLE_BROKEN in any sample or
                             EMCY 0xFF10), else 0.0
     body_acc_sq  [rad^2/s^3] int alpha_ddot^2 dt, alpha_ddot = IMU pitch acceleration
-    arm_power    [J]        int sum_arm I*V dt over the four arm motors (signed: regenerated
-                            energy counts negative, as the motor terminals see it)
+    arm_power    [J]        consumed electrical energy of the four arm motors,
+                            int sum_arm max(I*V, 0) dt
 lifting:
     x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
                               both wheels, phi relative to the body, so phi + alpha is the
@@ -19,7 +19,16 @@ lifting:
     alphadot_sq   [rad^2/s]   int alpha_dot^2 dt
     h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height from the measured arm
                               angles and pitch (``RobotParameters.bottle_height``)
-    power         [J]         int sum_all I*V dt over all seven motors (signed)
+    power         [J]         consumed electrical energy of all seven motors,
+                              int sum_all max(I*V, 0) dt
+
+Electrical energy is *consumed* energy: per motor and sample, the terminal power I*V counts
+only when positive. A motor that is back-driven (the ground pushing the arms, a wheel braking)
+generates (I*V < 0); the robot's drives have no regeneration into the battery, so that energy
+is burnt in each drive's brake resistor (a chopper across its DC link) and is *not* a credit:
+a signed integral would reward being back-driven, e.g. arms that give way under the falling
+body. Each drive has its own brake resistor, so there is no exchange between motors either
+(clip per motor, then sum).
 """
 from __future__ import annotations
 
@@ -47,7 +56,8 @@ def body_acc_sq(trace: Trace) -> float:
 
 
 def _power(trace: Trace, columns) -> np.ndarray:
-    return (trace.current[:, columns] * trace.voltage[:, columns]).sum(axis=1)
+    """Consumed electrical power [W] per sample, shape (n,): sum over ``columns`` of max(I*V, 0)."""
+    return np.maximum(trace.current[:, columns] * trace.voltage[:, columns], 0.0).sum(axis=1)
 
 
 def arm_power(trace: Trace) -> float:

@@ -5,9 +5,12 @@ Sampled once per control period (at SYNC):
 - ``pitch`` from the IMU frame's orientation (an attitude filter's output, modelled as the
   true pitch plus white noise);
 - ``pitch_rate`` = gyro y (body frame), fresh at the end of the period;
-- ``pitch_acc`` = (gyro_k - gyro_k-1) / control_period: the derivative a real IMU node takes
-  of its gyro, i.e. the mean angular acceleration over the period, so short impact spikes
-  inside a period are integrated, not missed;
+- ``pitch_acc`` = (gyro_k - gyro_k-1) / control_period of the *reported* (noisy) gyro samples:
+  a MEMS IMU measures rate, not angular acceleration; the IMU node differentiates the rate it
+  reports. It is the mean angular acceleration over the period, so short impact spikes inside
+  a period are integrated, not missed, and its noise follows from the gyro's:
+  sqrt(2) * sigma_rate / control_period (1.4 rad/s^2 at 5 ms), negatively correlated between
+  successive samples (an optional extra white term, ``ImuNoise.pitch_acc``, is 0 by default);
 - ``acc_x``, ``acc_z`` = the accelerometer (proper acceleration, body frame; +9.81 on z at
   rest) from the last physics substep.
 
@@ -38,12 +41,21 @@ class ImuSample:
 
 @dataclass(frozen=True)
 class ImuNoise:
-    """Standard deviations of the white noise added to each channel (units of ImuSample)."""
+    """Standard deviations of the white noise added to each channel (units of ImuSample).
+
+    ``pitch_acc`` is an *extra* white term on the derived angular acceleration; the derivative
+    of the noisy gyro already carries sqrt(2) * pitch_rate / control_period (see the module
+    docstring), so the default adds nothing.
+    """
 
     pitch: float = 0.002
     pitch_rate: float = 0.005
-    pitch_acc: float = 0.5
+    pitch_acc: float = 0.0
     acc: float = 0.05
+
+    def pitch_acc_std(self, control_period: float) -> float:
+        """Standard deviation of the reported ``pitch_acc`` (rad/s^2) at ``control_period``."""
+        return float(np.hypot(np.sqrt(2.0) * self.pitch_rate / control_period, self.pitch_acc))
 
     def as_array(self) -> np.ndarray:
         return np.array([self.pitch, self.pitch_rate, self.pitch_acc, self.acc, self.acc])
@@ -63,13 +75,14 @@ class Imu:
         self._acc_x, self._acc_z = acc_adr, acc_adr + 2
         self._rng = np.random.default_rng(0)
         self._prev_rate = 0.0
+        self._prev_noisy_rate = 0.0
         self.truth = ImuSample(0.0, 0.0, 0.0, 0.0, 0.0)
         self.latest = self.truth
 
     def reset(self, rng: np.random.Generator) -> None:
         """Start of an episode: zero angular-acceleration history, noise stream ``rng``."""
         self._rng = rng
-        self._prev_rate = float(self._physics.data.sensordata[self._gyro_y])
+        self._prev_rate = self._prev_noisy_rate = float(self._physics.data.sensordata[self._gyro_y])
         self.sample()
 
     def sample(self) -> ImuSample:
@@ -83,5 +96,8 @@ class Imu:
                 float(sensors[self._acc_x]), float(sensors[self._acc_z]))
         noise = self._rng.standard_normal(5).tolist()
         self.truth = ImuSample(*true)
-        self.latest = ImuSample(*(v + s * n for v, s, n in zip(true, self._sigma, noise)))
+        pitch, noisy_rate, _, acc_x, acc_z = (v + s * n for v, s, n in zip(true, self._sigma, noise))
+        noisy_alpha = (noisy_rate - self._prev_noisy_rate) / self._period + self._sigma[2] * noise[2]
+        self._prev_noisy_rate = noisy_rate
+        self.latest = ImuSample(pitch, noisy_rate, noisy_alpha, acc_x, acc_z)
         return self.latest

@@ -37,14 +37,18 @@ def test_at_rest_the_accelerometer_sees_gravity_in_the_body_frame():
     assert imu.pitch_rate == 0.0 and imu.pitch_acc == 0.0
 
 
-def test_pitch_acceleration_is_the_gyro_derivative_over_one_period():
-    sim = Simulator(imu_noise=ImuNoise(0.0, 0.0, 0.0, 0.0), balance_free=True)
+@pytest.mark.parametrize("noise", [ImuNoise(0.0, 0.0, 0.0, 0.0), ImuNoise()])
+def test_pitch_acceleration_is_the_derivative_of_the_reported_gyro(noise):
+    """The IMU measures rate; the acceleration it reports is the difference of the rates it
+    reports, noise included (a real IMU node cannot differentiate the true rate)."""
+    sim = Simulator(imu_noise=noise, balance_free=True)
     sim.reset("idle", 0)
     previous = sim.imu().pitch_rate
     for _ in range(80):                            # the passive robot starts to fall
         sim.step()
         imu = sim.imu()
-        assert imu.pitch_acc == pytest.approx((imu.pitch_rate - previous) / sim.control_period)
+        assert imu.pitch_acc == pytest.approx((imu.pitch_rate - previous) / sim.control_period,
+                                              abs=1e-9)
         previous = imu.pitch_rate
     assert abs(previous) > 0.1
 
@@ -63,6 +67,11 @@ def test_noise_has_the_documented_spread():
     noise = ImuNoise()
     noisy, true = _run(3, 300)
     err = noisy[:, :3] - true
-    for col, sigma in enumerate((noise.pitch, noise.pitch_rate, noise.pitch_acc)):
+    sigma_acc = noise.pitch_acc_std(0.005)
+    assert sigma_acc == pytest.approx(math.sqrt(2) * noise.pitch_rate / 0.005)   # 1.41 rad/s^2
+    for col, sigma in enumerate((noise.pitch, noise.pitch_rate, sigma_acc)):
         assert abs(err[:, col].mean()) < 4 * sigma / math.sqrt(len(err))
         assert err[:, col].std() == pytest.approx(sigma, rel=0.2)
+    # a difference of white noise: successive acceleration errors are anti-correlated (-1/2)
+    e = err[:, 2]
+    assert np.corrcoef(e[1:], e[:-1])[0, 1] == pytest.approx(-0.5, abs=0.15)

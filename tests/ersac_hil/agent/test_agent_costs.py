@@ -37,8 +37,21 @@ def test_bracing_terms_are_the_integrals(acc, amps, volts):
     terms = costs.cost_terms("bracing", tr)
     assert list(terms) == list(TASKS["bracing"].term_names)
     assert terms["body_acc_sq"] == pytest.approx(acc * acc * 2.0)
-    assert terms["arm_power"] == pytest.approx(4 * amps * volts * 2.0, abs=1e-9)
+    # consumed energy: a generating motor (I*V < 0) counts zero, never a credit
+    assert terms["arm_power"] == pytest.approx(4 * max(amps * volts, 0.0) * 2.0, abs=1e-9)
     assert terms["damage"] == 0.0
+
+
+def test_consumed_energy_is_clipped_per_motor_not_after_summing():
+    n = 100
+    cur = np.zeros((n, 7))
+    volt = np.zeros((n, 7))
+    cur[:, 3], volt[:, 3] = 2.0, 10.0      # shoulder_left drives: +20 W
+    cur[:, 4], volt[:, 4] = -2.0, 15.0     # elbow_left back-driven, generating: -30 W
+    tr = trace(n, current=cur, voltage=volt)
+    assert costs.arm_power(tr) == pytest.approx(20.0 * n * DT)   # not (20 - 30) W, not 0
+    assert costs.power(tr) == pytest.approx(20.0 * n * DT)
+    assert costs.summary(tr)["energy_j"] == pytest.approx(20.0 * n * DT)
 
 
 def test_damage_from_status_bit_or_emcy():
