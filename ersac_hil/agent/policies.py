@@ -38,6 +38,7 @@ from ersac_hil.agent.errors import LimitViolation
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from protocol.can import objects as obj
 from protocol.can.objects import SPLINE_MAX_KNOTS
+from protocol.can.spline import hermite_sample
 from protocol.zenoh import TASKS
 
 
@@ -99,25 +100,9 @@ class Spline:
         return float(self.times[-1])
 
     def sample(self, t) -> tuple[np.ndarray, np.ndarray]:
-        """Position and velocity at times ``t`` (shape ``(m,)``) -> two ``(m, 2)`` arrays;
-        before the first knot the first position, after the last the last (at rest)."""
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        times = self.times
-        seg = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-        t0, t1 = times[seg], times[seg + 1]
-        h = (t1 - t0)[:, None]
-        s = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)[:, None]
-        q0, q1 = self.positions[seg], self.positions[seg + 1]
-        v0, v1 = self.velocities[seg], self.velocities[seg + 1]
-        s2, s3 = s * s, s * s * s
-        q = ((2 * s3 - 3 * s2 + 1) * q0 + (s3 - 2 * s2 + s) * h * v0
-             + (-2 * s3 + 3 * s2) * q1 + (s3 - s2) * h * v1)
-        qd = ((6 * s2 - 6 * s) * (q0 - q1) / h + (3 * s2 - 4 * s + 1) * v0
-              + (3 * s2 - 2 * s) * v1)
-        after = t >= times[-1]
-        q[after], qd[after] = self.positions[-1], 0.0
-        q[t < times[0]], qd[t < times[0]] = self.positions[0], 0.0
-        return q, qd
+        """Position and velocity at times ``t`` (shape ``(m,)``) -> two ``(m, 2)`` arrays,
+        exactly as the arm controller interpolates (``protocol.can.spline``)."""
+        return hermite_sample(self.times, self.positions, self.velocities, t)
 
 
 def tangent_velocities(times: np.ndarray, positions: np.ndarray) -> np.ndarray:

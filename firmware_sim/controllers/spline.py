@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from protocol.can.spline import hermite_sample
+
 from .errors import ConfigRangeError
 
 MAX_KNOTS = 8
@@ -77,22 +79,6 @@ class HermiteSpline:
         return float(self.times[-1])
 
     def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Reference at times ``t`` (s since start), shape (m,) -> (q, qd), each shape (m, k)."""
-        t = np.asarray(t, dtype=float).reshape(-1)
-        times = self.times
-        seg = np.clip(np.searchsorted(times, t, side="right") - 1, 0, times.size - 2)
-        t0, t1 = times[seg], times[seg + 1]
-        h = (t1 - t0)[:, None]
-        s = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)[:, None]
-        q0, q1 = self.positions[seg], self.positions[seg + 1]
-        v0, v1 = self.velocities[seg], self.velocities[seg + 1]
-        s2, s3 = s * s, s * s * s
-        q = ((2 * s3 - 3 * s2 + 1) * q0 + (s3 - 2 * s2 + s) * h * v0
-             + (-2 * s3 + 3 * s2) * q1 + (s3 - s2) * h * v1)
-        qd = ((6 * s2 - 6 * s) * q0 / h + (3 * s2 - 4 * s + 1) * v0
-              + (-6 * s2 + 6 * s) * q1 / h + (3 * s2 - 2 * s) * v1)
-        outside = (t < times[0]) | (t >= times[-1])
-        qd[outside] = 0.0
-        q[t < times[0]] = self.positions[0]
-        q[t >= times[-1]] = self.positions[-1]
-        return q, qd
+        """Reference at times ``t`` (s since start), shape (m,) -> (q, qd), each shape (m, k)
+        (the interpolation of the contract, ``protocol.can.spline``)."""
+        return hermite_sample(self.times, self.positions, self.velocities, t)
