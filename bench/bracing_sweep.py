@@ -35,8 +35,9 @@ from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult  # noqa: E402
 KAPPAS = (0.0, 1.0, 2.0)
 
 
-def sweep(thetas: list[float], seeds: int) -> dict[float, list[EpisodeResult]]:
-    """{theta: [result per seed]}; every result has status ok (else RuntimeError)."""
+def sweep(thetas: list[float], seeds: int, first_seed: int = 0) -> dict[float, list[EpisodeResult]]:
+    """{theta: [result per seed]} for seeds first_seed .. first_seed + seeds - 1; every result
+    has status ok (else RuntimeError)."""
     config = BusConfig("virtual", f"sweep-{uuid.uuid4().hex[:8]}")
     out: dict[float, list[EpisodeResult]] = {}
     with SimulatedBench(config):
@@ -46,7 +47,7 @@ def sweep(thetas: list[float], seeds: int) -> dict[float, list[EpisodeResult]]:
             runner = EpisodeRunner(bus)
             for theta in thetas:
                 out[theta] = []
-                for seed in range(seeds):
+                for seed in range(first_seed, first_seed + seeds):
                     req = EpisodeRequest(f"sw-{uuid.uuid4().hex[:8]}", "bracing", (theta,), seed)
                     r = runner.run(runner.plan(req))
                     if r.status != "ok":
@@ -77,19 +78,33 @@ def table(results: dict[float, list[EpisodeResult]]) -> list[tuple[float, float,
     return rows
 
 
+def episodes(results: dict[float, list[EpisodeResult]]) -> None:
+    """One line per episode: theta, seed, impact momentum (bench ground truth), J, terms."""
+    for theta, rs in results.items():
+        for r in rs:
+            p = r.telemetry.get("bench_impact_momentum_ns", float("nan"))
+            terms = " ".join(f"{k} {v:8.2f}" for k, v in r.cost_terms.items())
+            print(f"theta {theta:4.2f} p {p:5.2f} J {r.total_cost:7.1f} {terms} "
+                  f"fallen {int(r.failed('fallen'))}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=8, help="episodes per theta (seeds 0..n-1)")
+    ap.add_argument("--seeds", type=int, default=8, help="episodes per theta")
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first .. first + seeds - 1")
     ap.add_argument("--thetas", default=",".join(f"{0.1 * i:.1f}" for i in range(11)),
                     help="comma-separated theta grid in [0, 1]")
+    ap.add_argument("--episodes", action="store_true", help="also print every episode")
     args = ap.parse_args()
     thetas = [float(t) for t in args.thetas.split(",")]
     t0 = time.perf_counter()
-    results = sweep(thetas, args.seeds)
+    results = sweep(thetas, args.seeds, args.first_seed)
     wall = time.perf_counter() - t0
     weights = TASKS["bracing"].default_weights
     print(f"bracing sweep: {len(thetas)} thetas x {args.seeds} seeds through the virtual-bus stack, "
           f"J = " + " + ".join(f"{w:g} {n}" for n, w in weights.items()))
+    if args.episodes:
+        episodes(results)
     rows = table(results)
     for kappa in KAPPAS:
         theta, mean, std = min(rows, key=lambda r: r[1] + kappa * r[2])

@@ -3,13 +3,19 @@
 *Bracing* (theta in [0, 1]): the stiffness of all four arm joints, log-linear between
 ``k_min`` and ``k_max``::
 
-    K(theta) = k_min * (k_max / k_min) ** theta          [N m/rad], default 5 .. 300
+    K(theta) = k_min * (k_max / k_min) ** theta          [N m/rad], default 8 .. 450
 
-(the useful bracing range of the arm boards, docs/robot_model.md; equal ratios of stiffness
-per equal step of theta), and the damping that gives each joint the damping ratio ``zeta``
-with the inertia it moves (``RobotParameters.arm_inertia`` at the bracing pose)::
+(equal ratios of stiffness per equal step of theta; 450 is below the boards' 500 N m/rad
+limit), with stiffness-proportional damping at the arm boards' own damping time::
 
-    D_j(theta) = 2 zeta sqrt(K(theta) J_j)               [N m s/rad]
+    D(theta) = damping_time * K(theta)                   [N m s/rad], damping_time = 10 ms
+
+(the boards' power-on impedance, 50 N m/rad with 0.5 N m s/rad, has the same 10 ms). theta
+sets one compliance, spring and damper together: the damping ratio grows with stiffness
+(about 0.02 at 5 N m/rad to 0.2 at 450 for the 0.3 kg m^2 arm), so soft arms are springs that
+give way under the falling body and stiff arms stop it. A constant damping ratio would make
+the soft end viscous rather than soft (a 5 N m/rad arm with 1.7 N m s/rad resists a 4 rad/s
+fold with more damping than spring torque); docs/agent.md compares the two.
 
 The arms hold the bracing pose (shoulder, elbow) for ground contact.
 
@@ -55,17 +61,18 @@ class BracingPolicy:
 
     Attributes:
         k_min, k_max: stiffness at theta = 0 and theta = 1 [N m/rad].
-        zeta: damping ratio of each arm joint.
+        damping_time: D / K of every arm joint [s].
         pose: (shoulder, elbow) setpoints held during the episode [rad].
     """
-    k_min: float = 5.0
-    k_max: float = 300.0
-    zeta: float = 0.7
-    pose: tuple[float, float] = (0.5, 0.6)
+    k_min: float = 8.0
+    k_max: float = 450.0
+    damping_time: float = 0.01
+    pose: tuple[float, float] = (0.5, 0.75)
     robot: RobotParameters = UBOT
 
     def __post_init__(self) -> None:
-        if not 0 < self.k_min < self.k_max <= self.robot.stiffness_max or self.zeta <= 0:
+        if (not 0 < self.k_min < self.k_max <= self.robot.stiffness_max
+                or not 0 < self.damping_time * self.k_max <= self.robot.damping_max):
             raise ValueError(f"invalid bracing map {self}")
 
     def stiffness(self, theta: float) -> float:
@@ -74,11 +81,20 @@ class BracingPolicy:
         theta = spec.check_theta((theta,))[0]
         return self.k_min * (self.k_max / self.k_min) ** theta
 
-    def impedance(self, theta: float) -> ArmImpedance:
-        k = self.stiffness(theta)
+    def damping(self, theta: float) -> float:
+        """D(theta) [N m s/rad]."""
+        return self.damping_time * self.stiffness(theta)
+
+    def damping_ratio(self, theta: float) -> tuple[float, float]:
+        """(shoulder, elbow) damping ratio D / (2 sqrt(K J)) with the inertia each joint moves
+        (``RobotParameters.arm_inertia`` at the bracing pose); for documentation and tests."""
+        k, d = self.stiffness(theta), self.damping(theta)
         js, je = self.robot.arm_inertia(self.pose[1])
-        d = tuple(min(2 * self.zeta * math.sqrt(k * j), self.robot.damping_max) for j in (js, je))
-        return ArmImpedance((k, k), d)  # type: ignore[arg-type]
+        return (d / (2 * math.sqrt(k * js)), d / (2 * math.sqrt(k * je)))
+
+    def impedance(self, theta: float) -> ArmImpedance:
+        k, d = self.stiffness(theta), self.damping(theta)
+        return ArmImpedance((k, k), (d, d))
 
 
 @dataclass(frozen=True)

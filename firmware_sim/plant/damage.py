@@ -35,7 +35,7 @@ class CableSpec:
 
     pulley_radius: float = 0.02
     pretension: float = 40.0
-    breaking_tension: float = 1300.0
+    breaking_tension: float = 1240.0
 
     @property
     def breaking_torque(self) -> float:

@@ -34,8 +34,8 @@ PENDULUM_XML = Path(__file__).with_name("pendulum.xml")
 class Bracing(Scenario):
     name: ClassVar[str] = "bracing"
     pose: ClassVar[dict[str, float]] = {
-        "torso": 0.0, "shoulder_left": 0.5, "elbow_left": 0.6,
-        "shoulder_right": 0.5, "elbow_right": 0.6,
+        "torso": 0.0, "shoulder_left": 0.5, "elbow_left": 0.75,
+        "shoulder_right": 0.5, "elbow_right": 0.75,
     }
     momentum_mean = 14.0
     """N s."""

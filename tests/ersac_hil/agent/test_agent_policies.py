@@ -20,9 +20,9 @@ SENSIBLE = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
 
 def test_bracing_stiffness_is_log_linear_between_the_ends():
     p = BracingPolicy()
-    assert p.stiffness(0.0) == pytest.approx(5.0)
-    assert p.stiffness(1.0) == pytest.approx(300.0)
-    assert p.stiffness(0.5) == pytest.approx(math.sqrt(5.0 * 300.0))
+    assert p.stiffness(0.0) == pytest.approx(p.k_min) and p.k_min == pytest.approx(8.0)
+    assert p.stiffness(1.0) == pytest.approx(p.k_max) and p.k_max == pytest.approx(450.0)
+    assert p.stiffness(0.5) == pytest.approx(math.sqrt(p.k_min * p.k_max))
     with pytest.raises(InvalidField):
         p.stiffness(1.01)
     with pytest.raises(InvalidField):
@@ -30,15 +30,25 @@ def test_bracing_stiffness_is_log_linear_between_the_ends():
 
 
 @given(a=st.floats(0, 1), b=st.floats(0, 1))
-def test_bracing_map_monotone_within_board_ranges_with_constant_damping_ratio(a, b):
+def test_bracing_map_monotone_within_board_ranges_with_constant_damping_time(a, b):
     p = BracingPolicy()
     lo, hi = sorted((a, b))
     assert p.stiffness(lo) <= p.stiffness(hi)
     imp = p.impedance(a)
-    js, je = UBOT.arm_inertia(p.pose[1])
-    for k, d, j in zip(imp.stiffness, imp.damping, (js, je)):
+    for k, d in zip(imp.stiffness, imp.damping):
         assert 0 < k <= UBOT.stiffness_max and 0 < d <= UBOT.damping_max
-        assert d / (2 * math.sqrt(k * j)) == pytest.approx(p.zeta)
+        assert d / k == pytest.approx(p.damping_time)        # the boards' default D/K, 10 ms
+    # the damping ratio rises with stiffness: soft arms are springs, stiff arms well damped
+    assert p.damping_ratio(lo)[0] <= p.damping_ratio(hi)[0] + 1e-12
+    js, je = UBOT.arm_inertia(p.pose[1])
+    assert p.damping_ratio(a)[1] == pytest.approx(imp.damping[1] / (2 * math.sqrt(imp.stiffness[1] * je)))
+
+
+def test_bracing_map_refuses_impedances_the_boards_refuse():
+    with pytest.raises(ValueError):
+        BracingPolicy(k_max=UBOT.stiffness_max + 1)
+    with pytest.raises(ValueError):
+        BracingPolicy(damping_time=UBOT.damping_max / 450.0 * 1.01)
 
 
 def test_lifting_spline_knots_times_and_tangents():
