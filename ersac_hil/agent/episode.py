@@ -58,7 +58,8 @@ class EpisodeConfig:
             contract's ``default_weights``; the learner re-weights the terms anyway).
         lifting_payload_kg: the bottle, for the balance reference and the LQR model.
         strike_acc: bracing: a pitch acceleration above this [rad/s^2] is the strike; the
-            wheels are released (IMU noise is 0.5 rad/s^2, balancing stays below ~5).
+            wheels are released (IMU noise is 1.4 rad/s^2, balancing stays below ~5; the padded
+            impactor peaks at 70-100).
         goal_tolerance_m, rest_speed_m_s, rest_s: the lifting end condition.
         go_timeout_s: how long to wait for the go signal without a test bench.
         testbench_wait_s, testbench_recent_s: how long to listen for the test bench's heartbeat

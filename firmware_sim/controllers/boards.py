@@ -20,7 +20,7 @@ from .firmware import Firmware
 from .spline import HermiteSpline
 
 STIFFNESS_RANGE = (0.0, 500.0)
-"""N m/rad accepted by the impedance law; the useful bracing range is about 5..300."""
+"""N m/rad accepted by the impedance law; the agent's bracing map uses 8..450."""
 DAMPING_RANGE = (0.0, 50.0)
 """N m s/rad."""
 VELOCITY_LIMIT_RANGE = (0.01, 30.0)
