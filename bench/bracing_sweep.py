@@ -1,9 +1,11 @@
 """The bracing trade-off through the real pipeline: simulator -> CANopen -> agent -> cost terms.
 
-    .venv/bin/python bench/bracing_sweep.py [--seeds 8] [--thetas 0,0.1,...,1]
+    .venv/bin/python bench/bracing_sweep.py [--seeds 8] [--first-seed 0] [--thetas 0,0.1,...,1]
+                                           [--episodes]
 
-For every theta of the grid, runs one bracing episode per seed (0 .. seeds-1, the same seeds for
-every theta: common random numbers, so differences between thetas are not seed noise) on an
+For every theta of the grid, runs one bracing episode per seed (first-seed .. first-seed +
+seeds - 1, the same seeds for every theta: common random numbers, so differences between
+thetas are not seed noise) on an
 in-process simulated bench over a virtual CAN bus, exactly as the learner would get them
 (``EpisodeRunner.plan`` / ``run``, the agent's default configuration and weights). Prints per
 theta: the arm stiffness, mean and standard deviation of the total cost J, the damage rate
