@@ -30,6 +30,8 @@ from protocol.zenoh import (
     WeightsCommand,
 )
 
+from .replies import MalformedReply, ReplyRefused, ReplyTimeout, decode_reply
+
 __all__ = ["ClientError", "RequestRefused", "NoAnswer", "LearnerClient"]
 
 _M = TypeVar("_M", bound=Message)
@@ -79,21 +81,14 @@ class LearnerClient:
         timeout = self.timeout_s if timeout_s is None else timeout_s
         selector = KeySpace.selector(key, parameters or None)
         for reply in self._session.get(selector, timeout=timeout):
-            if reply.ok is not None:
-                try:
-                    return cls.from_json(reply.ok.payload)
-                except PayloadError as exc:
-                    raise ClientError(f"invalid {cls.TYPE} from {key}: {exc}") from exc
-            raw = reply.err.payload.to_bytes()
             try:
-                error = ErrorReply.from_json(raw)
-            except PayloadError:
-                text = raw.decode("utf-8", "replace")[:4096] or "error without reason"
-                code = "timeout" if "timeout" in text.lower() else "internal"
-                if code == "timeout":
-                    raise NoAnswer(f"no answer on {key} within {timeout:g} s") from None
-                error = ErrorReply(code, text)
-            raise RequestRefused(error)
+                return decode_reply(reply, cls)
+            except ReplyRefused as exc:
+                raise RequestRefused(exc.error) from None
+            except ReplyTimeout:
+                raise NoAnswer(f"no answer on {key} within {timeout:g} s") from None
+            except MalformedReply as exc:
+                raise ClientError(f"bad reply from {key}: {exc}") from None
         raise NoAnswer(f"no learner answered on {key} within {timeout:g} s "
                        "(is the daemon running for this robot and endpoint?)")
 

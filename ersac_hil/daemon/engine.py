@@ -20,7 +20,9 @@ import numpy as np
 from ersac_hil.learner import ERSAC, CostWeights, InsufficientDataError
 from protocol.zenoh import get_task
 
-__all__ = ["Engine", "Proposal", "Step", "NotEnoughData"]
+from .store import UpdateRecord
+
+__all__ = ["Engine", "Proposal", "NotEnoughData"]
 
 
 class NotEnoughData(RuntimeError):
@@ -35,23 +37,6 @@ class Proposal:
     base_theta: tuple[float, ...]
     z: tuple[float, ...]
     theta: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class Step:
-    """One tell. ``J``, ``r`` (at theta_before), ``r_z`` (at the executed theta) and
-    ``td_error`` are ``None`` during the learner's warm-up (no update yet)."""
-
-    theta_before: tuple[float, ...]
-    theta_after: tuple[float, ...]
-    cost: float
-    J: float | None
-    r: float | None
-    r_z: float | None
-    td_error: float | None
-    kappa: float
-    lr: float
-    warmup: bool
 
 
 def _tuple(a: Any) -> tuple[float, ...]:
@@ -151,13 +136,17 @@ class Engine:
         executed = self._learner.ask()
         return Proposal(_tuple(base), _tuple(executed - base), _tuple(executed))
 
-    def learn(self, proposal: Proposal, terms: Mapping[str, float]) -> Step:
-        """Tell the learner the cost terms of the proposal's episode."""
+    def learn(self, proposal: Proposal, terms: Mapping[str, float], *, run_id: str, idx: int,
+              episode_id: str, stamp_s: float) -> UpdateRecord:
+        """Tell the learner the cost terms of the proposal's episode; the update as stored."""
         u = self._learner.tell(np.asarray(proposal.theta, dtype=float), dict(terms))
         opt = lambda v: None if v is None else float(v)  # noqa: E731
-        return Step(_tuple(u.theta_before), _tuple(u.theta_after), float(u.cost), opt(u.J_tilde),
-                    opt(u.r_tilde), opt(u.r_tilde_perturbed), opt(u.td_error), float(u.kappa),
-                    float(u.step_size), bool(u.warmup))
+        return UpdateRecord(
+            run_id=run_id, idx=idx, episode_id=episode_id,
+            theta_before=_tuple(u.theta_before), theta_after=_tuple(u.theta_after),
+            cost=float(u.cost), J=opt(u.J_tilde), r=opt(u.r_tilde), r_z=opt(u.r_tilde_perturbed),
+            td_error=opt(u.td_error), kappa=float(u.kappa), lr=float(u.step_size),
+            state=self.snapshot(), stamp_s=stamp_s)
 
     # ------------------------------------------------------------------ changes
     def set_kappa(self, kappa: float) -> None:

@@ -204,8 +204,11 @@ class EpisodeRecord:
 
 @dataclass(frozen=True)
 class UpdateRecord:
-    """One learner update (after ok episode ``idx``). ``state``: learner state after it.
-    ``J``, ``r``, ``r_z``, ``td_error`` are ``None`` for warm-up updates (no step)."""
+    """One learner update (after ok episode ``idx``), the daemon's only update record: the
+    engine builds it from the learner's ``Update``, the store keeps and returns it. ``J``
+    (= J~(theta_before)), ``r`` (= r~(theta_before)), ``r_z`` (= r~ at the executed theta)
+    and ``td_error`` are ``None`` for warm-up updates (no step); ``lr`` is the step size
+    eta / r~ after clipping; ``state``: the learner's resumable state after the update."""
 
     run_id: str
     idx: int
@@ -221,6 +224,11 @@ class UpdateRecord:
     lr: float
     state: Mapping[str, Any]
     stamp_s: float
+
+    @property
+    def warmup(self) -> bool:
+        """A warm-up tell: the learner stored the episode but took no step."""
+        return self.J is None
 
 
 @dataclass(frozen=True)
@@ -258,10 +266,10 @@ def _episode(row: sqlite3.Row) -> EpisodeRecord:
 
 def _update(row: sqlite3.Row) -> UpdateRecord:
     return UpdateRecord(
-        row["run_id"], row["idx"], row["episode_id"], _tuple(row["theta_before"]),
-        _tuple(row["theta_after"]), row["cost"], row["J"], row["r"], row["r_z"], row["td_error"],
-        row["kappa"],
-        row["lr"], json.loads(row["state"]), row["stamp_s"],
+        run_id=row["run_id"], idx=row["idx"], episode_id=row["episode_id"],
+        theta_before=_tuple(row["theta_before"]), theta_after=_tuple(row["theta_after"]),
+        cost=row["cost"], J=row["J"], r=row["r"], r_z=row["r_z"], td_error=row["td_error"],
+        kappa=row["kappa"], lr=row["lr"], state=json.loads(row["state"]), stamp_s=row["stamp_s"],
     )
 
 

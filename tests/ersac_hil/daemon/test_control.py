@@ -59,7 +59,7 @@ def learned(router, tmp_path_factory):
                           kappa=1.0, resume="new", linger=True, backoff_s=(0.05, 0.1))
     daemon = Daemon(config)
     daemon.start()
-    wait_until(lambda: daemon.state().status == "idle")
+    wait_until(lambda: daemon.handlers.state().status == "idle")
     yield {"daemon": daemon, "db": db, "episodes": episodes, "errors": errors, "monitor": monitor,
            "agent": agent}
     daemon.stop()
@@ -92,8 +92,8 @@ def _snapshot(learned) -> tuple:
     """Everything a refused request must leave alone: learner state and the store."""
     daemon = learned["daemon"]
     with Store(learned["db"], readonly=True) as store:
-        run = daemon.run.run_id
-        return (daemon.state(), [(e.episode_id, e.cost) for e in store.attempts(run)],
+        run = daemon.learning.run_id
+        return (daemon.handlers.state(), [(e.episode_id, e.cost) for e in store.attempts(run)],
                 store.changes(run), len(store.updates(run)))
 
 
@@ -110,7 +110,7 @@ def _drain(errors: queue.Queue) -> list[ErrorReply]:
 def test_state_and_published_episodes(learned, client):
     state = client.state()
     assert isinstance(state, LearnerState)
-    assert state.run_id == learned["daemon"].run.run_id and state.task == "bracing"
+    assert state.run_id == learned["daemon"].learning.run_id and state.task == "bracing"
     assert state.episode_count == EPISODES and state.status == "idle" and state.kappa == 1.0
     with Store(learned["db"], readonly=True) as store:
         attempts = store.attempts(state.run_id)
@@ -128,7 +128,7 @@ def test_state_and_published_episodes(learned, client):
 
 
 def test_critic_points_and_grid(learned, client):
-    theta = learned["daemon"].state().theta
+    theta = learned["daemon"].handlers.state().theta
     reply = client.critic(CriticQuery((theta, (0.25,)), kappa=2.0))
     assert isinstance(reply, CriticReply) and reply.kappa == 2.0
     assert [p.theta for p in reply.points] == [theta, (0.25,)]
@@ -150,7 +150,7 @@ def test_select_without_and_with_adopt(learned, client):
     assert sel.F == pytest.approx(sel.J) and sel.kappa == 0.0
     assert client.state().theta == before.theta
     with Store(learned["db"], readonly=True) as store:
-        assert store.changes(daemon.run.run_id, "theta") == []
+        assert store.changes(daemon.learning.run_id, "theta") == []
     risky = client.select(SelectQuery(kappa=3.0, weights={"damage": 50.0}, adopt=True))
     assert risky.adopted and risky.weights["damage"] == 50.0
     assert risky.weights["body_acc_sq"] == before.weights["body_acc_sq"]
@@ -158,16 +158,16 @@ def test_select_without_and_with_adopt(learned, client):
     assert after.theta == risky.theta
     assert after.weights == before.weights  # selection weights are not adopted
     with Store(learned["db"], readonly=True) as store:
-        change = store.latest_change(daemon.run.run_id, "theta")
+        change = store.latest_change(daemon.learning.run_id, "theta")
         assert tuple(change.value) == risky.theta and change.n_updates == EPISODES
 
 
 def test_kappa_put_is_applied_and_recorded(learned, client):
     daemon = learned["daemon"]
     state = client.set_kappa(2.5)
-    assert state.kappa == 2.5 and daemon.engine.kappa == 2.5
+    assert state.kappa == 2.5 and daemon.learning.engine.kappa == 2.5
     with Store(learned["db"], readonly=True) as store:
-        change = store.latest_change(daemon.run.run_id, "kappa")
+        change = store.latest_change(daemon.learning.run_id, "kappa")
     assert change.value == 2.5 and change.source == "control" and change.n_updates == EPISODES
     assert client.critic(CriticQuery(((0.5,),))).kappa == 2.5
     client.set_kappa(1.0)
@@ -181,13 +181,13 @@ def test_weights_put_recosts_every_stored_episode(learned, client):
     assert state.weights["body_acc_sq"] == 0.1
     complete = dict(state.weights)
     with Store(learned["db"], readonly=True) as store:
-        run = daemon.run.run_id
+        run = daemon.learning.run_id
         change = store.latest_change(run, "weights")
         ok = store.ok_episodes(run)
         updates = store.updates(run)
     assert change.value == complete and change.n_updates == EPISODES
     for ep in ok:
-        expected = daemon.engine.cost(ep.cost_terms)
+        expected = daemon.learning.engine.cost(ep.cost_terms)
         assert ep.cost == expected  # exactly the learner's own cost under the new weights
         assert expected == pytest.approx(sum(complete[k] * ep.cost_terms[k] for k in complete))
     assert [u.cost for u in updates] != [ep.cost for ep in ok]  # history keeps what was told
@@ -306,10 +306,10 @@ def test_garbage_puts_never_change_anything(learned, kind, payload):
         assert not refused
         if kind == "kappa":
             assert after[0].kappa == cmd.kappa
-            daemon.set_kappa(KappaCommand(before[0].kappa))
+            daemon.handlers.set_kappa(KappaCommand(before[0].kappa))
         else:
             assert all(after[0].weights[k] == v for k, v in cmd.weights.items())
-            daemon.set_weights(WeightsCommand(dict(before[0].weights)))
+            daemon.handlers.set_weights(WeightsCommand(dict(before[0].weights)))
     else:
         assert refused
 
@@ -384,7 +384,7 @@ def _cli(router, capsys, *argv: str) -> tuple[int, str, str]:
 
 def test_cli_clients(learned, router, capsys):
     code, out, _ = _cli(router, capsys, "state")
-    assert code == 0 and f"run       {learned['daemon'].run.run_id}" in out
+    assert code == 0 and f"run       {learned['daemon'].learning.run_id}" in out
     code, out, _ = _cli(router, capsys, "state", "--json")
     assert code == 0 and LearnerState.from_json(out.strip()).episode_count == EPISODES
     code, out, _ = _cli(router, capsys, "kappa", "set", "0.75")

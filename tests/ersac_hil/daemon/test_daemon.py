@@ -85,7 +85,7 @@ def test_kappa_change_mid_run_is_used_from_the_next_update(router, agent_factory
         client.set_kappa(3.0)
     assert daemon.finished.wait(60) and daemon.exit_code == 0
     with Store(daemon.config.db, readonly=True) as store:
-        run = daemon.run.run_id
+        run = daemon.learning.run_id
         change = store.latest_change(run, "kappa")
         kappas = [u.kappa for u in store.updates(run)]
     k = change.n_updates
@@ -97,14 +97,14 @@ def test_agent_absent_then_lost_mid_episode_then_back(router, daemon_factory, tm
     out = io.StringIO()
     daemon = daemon_factory("gone", episodes=6, out=out)
     wait_until(lambda: "waiting for the agent" in out.getvalue())
-    assert daemon.state().status == "paused"
+    assert daemon.handlers.state().status == "paused"
     cmd = [sys.executable, str(HERE / "synthetic_agent.py"), "--robot", "gone", "--zenoh", router.endpoint]
     slow = subprocess.Popen([*cmd, "--delay", "30"], stdout=subprocess.PIPE, text=True)
     try:
         with Store(daemon.config.db, readonly=True) as store:
-            wait_until(lambda: store.attempts(daemon.run.run_id, "pending"))
+            wait_until(lambda: store.attempts(daemon.learning.run_id, "pending"))
             slow.send_signal(signal.SIGKILL)  # the agent dies mid-episode
-            wait_until(lambda: store.attempts(daemon.run.run_id, "lost"), timeout_s=10)
+            wait_until(lambda: store.attempts(daemon.learning.run_id, "lost"), timeout_s=10)
     finally:
         slow.kill()
         slow.wait()
@@ -115,7 +115,7 @@ def test_agent_absent_then_lost_mid_episode_then_back(router, daemon_factory, tm
         fast.terminate()
         fast.wait(10)
     with Store(daemon.config.db, readonly=True) as store:
-        attempts = store.attempts(daemon.run.run_id)
+        attempts = store.attempts(daemon.learning.run_id)
     assert [a.status for a in attempts] == ["lost"] + ["ok"] * 6
     assert attempts[0].theta == attempts[1].theta and attempts[0].seed == attempts[1].seed
     assert attempts[1].episode_id.endswith(".00000.1")  # same request, new episode id
@@ -127,13 +127,13 @@ def test_failed_episodes_are_retried_then_the_run_fails(router, agent_factory, d
     daemon = daemon_factory("bad", episodes=5, max_attempts=3)
     assert daemon.finished.wait(30) and daemon.exit_code == EXIT_FAILED
     with Store(daemon.config.db, readonly=True) as store:
-        attempts = store.attempts(daemon.run.run_id)
-        run = store.run(daemon.run.run_id)
+        attempts = store.attempts(daemon.learning.run_id)
+        run = store.run(daemon.learning.run_id)
     assert [a.status for a in attempts] == ["fault_pdo_timeout"] * 3
     assert [a.attempt for a in attempts] == [0, 1, 2] and {a.idx for a in attempts} == {0}
     assert len({(a.theta, a.seed) for a in attempts}) == 1  # the same request each time
     assert run.status == "failed" and "3 failed attempts" in run.detail
-    assert daemon.engine.n_observations == 0  # faults are never told to the learner
+    assert daemon.learning.engine.n_observations == 0  # faults are never told to the learner
     assert len(agent.requests) == 3
 
 
@@ -142,7 +142,7 @@ def test_refused_parameters_are_redrawn(router, agent_factory, daemon_factory):
     daemon = daemon_factory("lim", episodes=8, theta0=(0.88,), sigma=(0.05,))
     assert daemon.finished.wait(60) and daemon.exit_code == 0
     with Store(daemon.config.db, readonly=True) as store:
-        attempts = store.attempts(daemon.run.run_id)
+        attempts = store.attempts(daemon.learning.run_id)
     refused = [a for a in attempts if a.status == "refused"]
     ok = [a for a in attempts if a.ok]
     assert refused and len(ok) == 8
@@ -159,8 +159,8 @@ def test_an_agent_refusing_everything_fails_the_run(router, agent_factory, daemo
     daemon = daemon_factory("nope", episodes=3)
     assert daemon.finished.wait(60) and daemon.exit_code == EXIT_FAILED
     with Store(daemon.config.db, readonly=True) as store:
-        assert len(store.attempts(daemon.run.run_id, "refused")) == MAX_REDRAWS + 1
-        assert "refused 21 perturbations" in store.run(daemon.run.run_id).detail
+        assert len(store.attempts(daemon.learning.run_id, "refused")) == MAX_REDRAWS + 1
+        assert "refused 21 perturbations" in store.run(daemon.learning.run_id).detail
 
 
 # --------------------------------------------------------------------------- resume

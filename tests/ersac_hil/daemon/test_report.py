@@ -21,14 +21,14 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
         final = client.state()
     daemon.stop()
     out = tmp_path / "report"
-    summary = write_report(daemon.config.db, daemon.run.run_id, out)
+    summary = write_report(daemon.config.db, daemon.learning.run_id, out)
     assert summary == json.loads((out / "summary.json").read_text())
     for name in ("learning_curve.png", "critic.png", "telemetry.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     with Store(daemon.config.db, readonly=True) as store:
-        costs = [e.cost for e in store.ok_episodes(daemon.run.run_id)]
-        attempts = store.attempts(daemon.run.run_id)
+        costs = [e.cost for e in store.ok_episodes(daemon.learning.run_id)]
+        attempts = store.attempts(daemon.learning.run_id)
     assert summary["episodes"] == 15 and summary["attempts"] == len(attempts)
     assert summary["attempts_by_status"]["fault_pdo_timeout"] == len(attempts) - 15
     assert tuple(summary["final_theta"]) == final.theta and summary["kappa"] == 2.0
@@ -38,9 +38,9 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
     critic = summary["critic_at_final_theta"]
     assert critic["F"] == pytest.approx(critic["J"] + 2.0 * critic["r"]) and critic["r"] > 0
 
-    assert main(["report", daemon.run.run_id, "--db", str(daemon.config.db), "--out", str(tmp_path / "cli")]) == 0
+    assert main(["report", daemon.learning.run_id, "--db", str(daemon.config.db), "--out", str(tmp_path / "cli")]) == 0
     assert "summary.json" in capsys.readouterr().out
     assert main(["report", "latest", "--db", str(daemon.config.db), "--out", str(tmp_path / "l")]) == 0
-    assert json.loads((tmp_path / "l" / "summary.json").read_text())["run_id"] == daemon.run.run_id
+    assert json.loads((tmp_path / "l" / "summary.json").read_text())["run_id"] == daemon.learning.run_id
     assert main(["report", "no-such-run", "--db", str(daemon.config.db), "--out", str(tmp_path / "x")]) == 2
     assert main(["report", "x", "--db", str(tmp_path / "missing.db"), "--out", str(tmp_path / "y")]) == 2

@@ -1,6 +1,7 @@
 """The SQLite store, real files in tmp_path: WAL, commit per episode, re-costing, resume queries."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import sqlite3
 import subprocess
@@ -25,8 +26,10 @@ def _result(eid: str, terms: dict[str, float], status: str = "ok") -> EpisodeRes
 
 
 def _update(run_id: str, idx: int, eid: str, before: float, after: float) -> UpdateRecord:
-    return UpdateRecord(run_id, idx, eid, (before,), (after,), 1.5, 1.2, 0.3, 0.35, 0.1, 2.0, 0.2,
-                        {"rng": {"state": 12345678901234567890123}, "note": "x"}, 1000.0 + idx)
+    return UpdateRecord(run_id=run_id, idx=idx, episode_id=eid, theta_before=(before,),
+                        theta_after=(after,), cost=1.5, J=1.2, r=0.3, r_z=0.35, td_error=0.1,
+                        kappa=2.0, lr=0.2, state={"rng": {"state": 12345678901234567890123}, "note": "x"},
+                        stamp_s=1000.0 + idx)
 
 
 def _ok_episode(store: Store, run_id: str, idx: int, terms: dict[str, float], attempt: int = 0) -> str:
@@ -102,7 +105,7 @@ def test_success_and_update_are_one_transaction(store):
     bad = _update("run1", 0, "run1.99999.0", 0.5, 0.5)  # refers to an unknown episode
     with pytest.raises(StoreError):
         store.record_success(eid, _result(eid, terms), 1.0, bad)
-    broken = UpdateRecord("run1", 0, eid, (0.5,), (0.5,), math.nan, 0, 0, 0, 0, 0, 0, {}, 0.0)
+    broken = dataclasses.replace(_update("run1", 0, eid, 0.5, 0.5), cost=math.nan)
     with pytest.raises(sqlite3.IntegrityError):  # NaN cost -> NOT NULL violation -> rollback
         store.record_success(eid, _result(eid, terms), 1.0, broken)
     assert [e.status for e in store.attempts("run1")] == ["pending"]
@@ -148,7 +151,7 @@ def test_a_killed_writer_leaves_only_whole_episodes(tmp_path):
             if i == 40:
                 os.kill(os.getpid(), signal.SIGKILL)
             r = EpisodeResult(eid, "bracing", "ok", terms, spec.total_cost(terms))
-            s.record_success(eid, r, 1.0, UpdateRecord("k", i, eid, (0.5,), (0.5,), 1.0, None, None, None, None, 0.0, 0.1, {{}}, 0.0))
+            s.record_success(eid, r, 1.0, UpdateRecord(run_id="k", idx=i, episode_id=eid, theta_before=(0.5,), theta_after=(0.5,), cost=1.0, J=None, r=None, r_z=None, td_error=None, kappa=0.0, lr=0.1, state={{}}, stamp_s=0.0))
     """)
     proc = subprocess.run([sys.executable, "-c", code], timeout=60)
     assert proc.returncode == -9
