@@ -62,7 +62,7 @@ def sweep(thetas: list[float], seeds: int, first_seed: int = 0) -> dict[float, l
 
 def table(results: dict[float, list[EpisodeResult]]) -> list[tuple[float, float, float]]:
     """Print the table; returns (theta, mean J, std J) per theta."""
-    policy = EpisodeConfig().bracing  # the agent's default theta -> stiffness map
+    policy = EpisodeConfig().task("bracing").policy  # the agent's default theta -> stiffness map
     terms = TASKS["bracing"].term_names
     head = (f"{'theta':>5} {'K':>6} {'mean J':>7} {'std J':>6} {'damage':>6} {'fallen':>6} "
             + " ".join(f"{t:>11}" for t in terms))

@@ -5,8 +5,6 @@ raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``
 """
 from __future__ import annotations
 
-import math
-
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from protocol.can import objects as obj
@@ -45,20 +43,9 @@ def download_spline(bus: AgentBus, arm: Device, spline: Spline) -> None:
     bus.write(arm, Index.SPLINE_KNOT_COUNT, 0, len(spline.times))
 
 
-def read_ground_truth(bus: AgentBus, task: str) -> dict[str, float]:
-    """Test-bench readouts for the telemetry summary (simulated benches only; finite values)."""
-    out: dict[str, float] = {}
+def read_bench_truth(bus: AgentBus) -> tuple[dict[str, float], obj.Status]:
+    """Test-bench readouts every task has (simulated benches only) and the bench's ground-truth
+    status word (for the task's own readouts, ``Task.ground_truth``)."""
     flags = obj.Status(int(bus.read(TESTBENCH, Index.GROUND_TRUTH_FLAGS)))
-    out["bench_damaged"] = float(bool(flags & obj.Status.CABLE_BROKEN))
-    out["bench_fallen"] = float(bool(flags & obj.Status.FALLEN))
-    if task == "bracing":
-        out["bench_impact_momentum_ns"] = float(bus.read(TESTBENCH, Index.IMPACT_MOMENTUM, 0, obj.MOMENTUM))
-        for sub, side in ((1, "left"), (2, "right")):
-            out[f"bench_cable_tension_{side}_n"] = float(
-                bus.read(TESTBENCH, Index.CABLE_TENSION, sub, obj.TENSION))
-    elif task == "lifting":
-        raw = int(bus.read(TESTBENCH, Index.BOTTLE_HEIGHT))
-        if raw != obj.HEIGHT.raw_min:
-            out["bench_bottle_height_m"] = obj.HEIGHT.from_raw(raw)
-        out["bench_bottle_dropped"] = float(bool(flags & obj.Status.BOTTLE_DROPPED))
-    return {k: v for k, v in out.items() if math.isfinite(v)}
+    return ({"bench_damaged": float(bool(flags & obj.Status.CABLE_BROKEN)),
+             "bench_fallen": float(bool(flags & obj.Status.FALLEN))}, flags)

@@ -1,26 +1,9 @@
 """Cost terms from telemetry (pure functions over a ``Trace``; one function per term).
 
 Every integral is a rectangle sum over the SYNC samples, ``sum(f_k) * dt`` (each sample
-stands for one control period). Term names are those of ``protocol.zenoh.TASKS[task]
-.term_names``; weights are configuration (``TASKS[task].default_weights``), never applied here.
-
-bracing:
-    damage       [1]        1.0 if an elbow cable broke (status CABLE_BROKEN in any sample or
-                            EMCY 0xFF10), else 0.0
-    body_acc_sq  [rad^2/s^3] int alpha_ddot^2 dt, alpha_ddot = IMU pitch acceleration
-    arm_power    [J]        consumed electrical energy of the four arm motors,
-                            int sum_arm max(I*V, 0) dt
-lifting:
-    x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
-                              both wheels, phi relative to the body, so phi + alpha is the
-                              wheel's absolute angle) from the start of the episode
-    xdot_wheel_sq [m^2/s]     int xdot^2 dt, xdot = r (phi_dot + alpha_dot)
-    alpha_sq      [rad^2 s]   int alpha^2 dt (IMU pitch, from vertical)
-    alphadot_sq   [rad^2/s]   int alpha_dot^2 dt
-    h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height from the measured arm
-                              angles and pitch (``RobotParameters.bottle_height``)
-    power         [J]         consumed electrical energy of all seven motors,
-                              int sum_all max(I*V, 0) dt
+stands for one control period). Which terms a task reports, by name, is the task's
+(``ersac_hil.agent.tasks``: each task module lists its terms with their units); weights are
+configuration (``TASKS[task].default_weights``), never applied here.
 
 Electrical energy is *consumed* energy: per motor and sample, the terminal power I*V counts
 only when positive. A motor that is back-driven (the ground pushing the arms, a wheel braking)
@@ -32,14 +15,13 @@ body. Each drive has its own brake resistor, so there is no exchange between mot
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable
 
 import numpy as np
 
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.telemetry import ARM_SLICES, WHEELS_SLICE, Trace
 from protocol.can.objects import EmcyCode, Status
-from protocol.zenoh import TASKS
 
 
 def _integral(values: np.ndarray, dt: float) -> float:
@@ -104,30 +86,8 @@ def h_error_sq(trace: Trace, goal_height: float, robot: RobotParameters = UBOT) 
     return _integral((goal_height - bottle_height(trace, robot)) ** 2, trace.dt)
 
 
-def cost_terms(task: str, trace: Trace, *, emcy_codes: Iterable[int] = (),
-               goal_height: float = 1.2, robot: RobotParameters = UBOT) -> dict[str, float]:
-    """Every term of ``task`` by name (exactly ``TASKS[task].term_names``)."""
-    terms: Mapping[str, Callable[[], float]]
-    if task == "bracing":
-        codes = tuple(emcy_codes)
-        terms = {"damage": lambda: damage(trace, codes), "body_acc_sq": lambda: body_acc_sq(trace),
-                 "arm_power": lambda: arm_power(trace)}
-    elif task == "lifting":
-        terms = {"x_wheel_sq": lambda: x_wheel_sq(trace, robot),
-                 "xdot_wheel_sq": lambda: xdot_wheel_sq(trace, robot),
-                 "alpha_sq": lambda: alpha_sq(trace), "alphadot_sq": lambda: alphadot_sq(trace),
-                 "h_error_sq": lambda: h_error_sq(trace, goal_height, robot),
-                 "power": lambda: power(trace)}
-    else:
-        raise KeyError(f"no cost terms for task {task!r}")
-    names = TASKS[task].term_names
-    if set(terms) != set(names):
-        raise AssertionError(f"cost terms {sorted(terms)} != contract {sorted(names)}")
-    return {name: terms[name]() for name in names}
-
-
 def summary(trace: Trace, robot: RobotParameters = UBOT) -> dict[str, float]:
-    """Telemetry figures for the reply (snake_case names, SI units)."""
+    """Telemetry figures every task reports (snake_case names, SI units)."""
     if not len(trace):
         return {"n_cycles": 0.0}
     x, xdot = wheel_travel(trace, robot)
@@ -141,5 +101,4 @@ def summary(trace: Trace, robot: RobotParameters = UBOT) -> dict[str, float]:
         "max_abs_speed_m_s": float(np.abs(xdot).max()),
         "energy_j": _integral(p_all, trace.dt),
         "peak_current_a": float(np.abs(trace.current).max()),
-        "final_bottle_height_m": float(bottle_height(trace, robot)[-1]),
     }

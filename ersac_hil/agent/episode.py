@@ -4,16 +4,18 @@
     plan = runner.plan(request)          # pure: refuses (RequestRefused) before touching anything
     result = runner.run(plan)            # EpisodeResult, never raises for hardware faults
 
-``run``:
+The runner knows no task: what theta means, how the bench is configured, the arm commands,
+when the episode ends early and the cost terms are the task's (``ersac_hil.agent.tasks``),
+looked up by the request's task name among ``EpisodeConfig.tasks`` (``UnknownTask``, reply
+``unknown_task``, when this agent does not serve it). ``run``:
+
 1. the cyclic nodes must be on the bus (``NodeMissing`` -> ``fault_simulator``);
-2. reset: through the test-bench node when present (scenario, seed, reset command), else wait
-   for the go signal of a person who reset the robot (``go(timeout) -> bool``);
-3. configure by SDO in PRE-OPERATIONAL (bracing: arm impedance), NMT start; lifting: after the
-   first cycle, the spline from the measured start pose by SDO, started with the next SYNC;
-4. the SYNC loop (lock-step unless the bus is real-time): RPDOs with the LQR wheel torques and
-   the arm setpoints, SYNC, TPDOs; ends after T = ``TASKS[task].horizon_s`` or, lifting, at the
-   goal (spline finished, bottle within ``goal_tolerance_m`` of the goal height and ground speed
-   below ``rest_speed_m_s`` for ``rest_s``);
+2. reset: through the test-bench node when present (the task's scenario, seed, reset
+   command), else wait for the go signal of a person who reset the robot (``go(timeout) -> bool``);
+3. ``task.configure`` by SDO in PRE-OPERATIONAL, NMT start;
+4. the SYNC loop (lock-step unless the bus is real-time): RPDOs with the LQR wheel torques
+   and the task's arm commands (``task.begin`` after the first cycle), SYNC, TPDOs; ends after
+   T = ``TASKS[task].horizon_s`` or when the task's end condition says so;
 5. NMT pre-operational (the boards drop their torque), cost terms from the trace.
 
 A fault (PDO timeout, heartbeat lost, EMCY that is not a task outcome, bus down) ends the loop
@@ -27,6 +29,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -34,11 +37,11 @@ from ersac_hil.agent import configure, costs
 from ersac_hil.agent.bus import AgentBus, EmcyEvent
 from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
 from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
-from ersac_hil.agent.policies import ArmImpedance, BracingPolicy, LiftingPolicy, Spline
 from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.tasks import Task, default_tasks, lookup
 from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH
-from protocol.can.objects import Control, EmcyCode, Scenario, Status
+from protocol.can.bench import TESTBENCH
+from protocol.can.objects import EmcyCode, Status
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
 
 OUTCOME_EMCY = {EmcyCode.CABLE_BROKEN: "hardware_damage", EmcyCode.OVER_CURRENT: "over_current",
@@ -46,7 +49,6 @@ OUTCOME_EMCY = {EmcyCode.CABLE_BROKEN: "hardware_damage", EmcyCode.OVER_CURRENT:
 """EMCY codes that are task outcomes (failure flags), not faults."""
 OUTCOME_STATUS = {Status.CABLE_BROKEN: "hardware_damage", Status.OVER_CURRENT: "over_current",
                   Status.FALLEN: "fallen", Status.BOTTLE_DROPPED: "bottle_dropped"}
-SCENARIOS = {"bracing": Scenario.BRACING, "lifting": Scenario.LIFTING}
 
 
 @dataclass(frozen=True)
@@ -54,43 +56,46 @@ class EpisodeConfig:
     """What the agent does with a request (configuration, not code).
 
     Attributes:
+        tasks: the tasks this agent serves, by name (default: every task of
+            ``ersac_hil.agent.tasks`` with its default configuration).
+        lqr: balance weights (the design point is each task's ``balance``).
         weights: per task, the cost weights of the reply's ``total_cost`` (default the
             contract's ``default_weights``; the learner re-weights the terms anyway).
-        lifting_payload_kg: the bottle, for the balance reference and the LQR model.
-        strike_acc: bracing: a pitch acceleration above this [rad/s^2] is the strike; the
-            wheels are released (IMU noise is 1.4 rad/s^2, balancing stays below ~5; the padded
-            impactor peaks at 70-100).
-        goal_tolerance_m, rest_speed_m_s, rest_s: the lifting end condition.
         go_timeout_s: how long to wait for the go signal without a test bench.
         testbench_wait_s, testbench_recent_s: how long to listen for the test bench's heartbeat
             when not heard yet; how old its last heartbeat may be for it to count as present.
         node_timeout_s: how long the cyclic nodes may take to show up.
+        robot: geometry and masses for the balance.
     """
-    bracing: BracingPolicy = BracingPolicy()
-    lifting: LiftingPolicy = LiftingPolicy()
+    tasks: Mapping[str, Task] = field(default_factory=default_tasks)
     lqr: LqrWeights = LqrWeights()
     weights: Mapping[str, Mapping[str, float]] = field(
         default_factory=lambda: {name: dict(spec.default_weights) for name, spec in TASKS.items()})
-    lifting_payload_kg: float = 1.0
-    strike_acc: float = 30.0
-    goal_tolerance_m: float = 0.05
-    rest_speed_m_s: float = 0.05
-    rest_s: float = 0.25
     go_timeout_s: float = 600.0
     testbench_wait_s: float = 0.25
     testbench_recent_s: float = 5.0
     node_timeout_s: float = 1.0
     robot: RobotParameters = UBOT
 
+    def task(self, name: str) -> Task:
+        """The served task called ``name`` (``UnknownTask`` if none)."""
+        return lookup(self.tasks, name)
+
 
 @dataclass(frozen=True)
 class Plan:
-    """A validated request and what it means for the robot."""
+    """A validated request and what it means for the robot.
+
+    Attributes:
+        request: the request as received.
+        n_cycles: SYNC cycles of the full horizon.
+        task: the task that serves it.
+        setup: what ``task.plan(theta)`` made of theta (the task's own type).
+    """
     request: EpisodeRequest
     n_cycles: int
-    bracing_pose: tuple[float, float] | None = None
-    impedance: ArmImpedance | None = None
-    spline: Spline | None = None
+    task: Task
+    setup: Any
 
 
 @dataclass
@@ -119,23 +124,17 @@ class EpisodeRunner:
 
     # -- planning (pure) -------------------------------------------------------------------
     def plan(self, request: EpisodeRequest) -> Plan:
-        """Validate ``request`` against the robot; ``RequestRefused`` if it must not run."""
-        spec = TASKS[request.task]
-        n = int(round(spec.horizon_s / self.bus.timing.period_s))
-        if request.task == "bracing":
-            policy = self.config.bracing
-            return Plan(request, n, bracing_pose=policy.pose, impedance=policy.impedance(request.theta[0]))
-        if request.task == "lifting":
-            return Plan(request, n, spline=self.config.lifting.spline(request.theta))
-        raise KeyError(f"task {request.task!r} has no policy on this agent")
+        """Validate ``request`` against the robot; ``RequestRefused`` if it must not run
+        (``UnknownTask`` if this agent does not serve its task)."""
+        task = self.config.task(request.task)
+        n = int(round(task.spec.horizon_s / self.bus.timing.period_s))
+        return Plan(request, n, task, task.plan(request.theta))
 
     def design(self, task: str) -> BalanceDesign:
-        """The LQR design of ``task`` (cached): the robot at the task's nominal pose."""
+        """The LQR design of ``task`` (cached): the robot at the task's balance pose."""
         if task not in self._designs:
-            cfg = self.config
-            pose = cfg.bracing.pose if task == "bracing" else cfg.lifting.start
-            payload = cfg.lifting_payload_kg if task == "lifting" else 0.0
-            model = PendulumModel.from_robot(cfg.robot, pose, pose, payload)
+            cfg, balance = self.config, self.config.task(task).balance
+            model = PendulumModel.from_robot(cfg.robot, balance.pose, balance.pose, balance.payload_kg)
             self._designs[task] = BalanceDesign.compute(model, self.bus.timing.period_s, cfg.lqr)
         return self._designs[task]
 
@@ -144,7 +143,7 @@ class EpisodeRunner:
         """Run ``plan``; hardware faults end up in the result's status, never as exceptions.
         ``RequestRefused`` (a spline from the measured start out of limits, a refused
         configuration) propagates: nothing moved."""
-        request = plan.request
+        request, task = plan.request, plan.task
         wall0 = time.monotonic()
         run = _Run()
         self.stop_requested.clear()
@@ -156,12 +155,12 @@ class EpisodeRunner:
             bus.nmt_preop()
             testbench = self._testbench_present()
             if testbench:
-                configure.reset_scenario(bus, SCENARIOS[request.task], request.seed)
+                configure.reset_scenario(bus, task.scenario, request.seed)
             elif not self._wait_go():
                 run.status, run.detail = "aborted", "no go signal: the robot was not reset"
                 return self._result(plan, run, wall0)
             emcy_mark = bus.emcy_count
-            first = self._configure(plan)
+            first = task.configure(bus, plan.setup)
             bus.nmt_start()
             started = True
             self._loop(plan, run, first, emcy_mark)
@@ -176,7 +175,9 @@ class EpisodeRunner:
                     pass
         if testbench and run.status == "ok":
             try:  # best effort: ground truth for the summary
-                run.truth = configure.read_ground_truth(bus, request.task)
+                truth, flags = configure.read_bench_truth(bus)
+                truth.update(task.ground_truth(bus, flags))
+                run.truth.update({k: v for k, v in truth.items() if math.isfinite(v)})
             except AgentFault:
                 pass
         run.emcy = bus.emcy_events(emcy_mark)
@@ -199,44 +200,19 @@ class EpisodeRunner:
     def _wait_go(self) -> bool:
         return bool(self.go is not None and self.go(self.config.go_timeout_s))
 
-    def _configure(self, plan: Plan) -> Commands:
-        """SDO configuration before NMT start; returns the first cycle's commands (every board
-        enabled, the arms holding the bracing pose or the nominal lifting start)."""
-        if plan.request.task == "bracing":
-            configure.apply_impedance(self.bus, plan.impedance)  # type: ignore[arg-type]
-            pose = plan.bracing_pose
-        else:
-            pose = self.config.lifting.start
-        return Commands(arm_left=pose, arm_right=pose)  # type: ignore[arg-type]
-
-    def _start_spline(self, plan: Plan, tel: Telemetry) -> Commands:
-        """Lifting, after the first cycle: the spline from the *measured* start pose of each arm
-        (limits checked again), downloaded by SDO; the next cycle's START_SPLINE starts it."""
-        poses = {}
-        for arm, side in ((ARM_LEFT, "left"), (ARM_RIGHT, "right")):
-            poses[side] = tuple(float(q) for q in tel.arm_positions(side))
-            spline = self.config.lifting.spline(plan.request.theta, poses[side])
-            configure.download_spline(self.bus, arm, spline)
-        return Commands(arm_left=poses["left"], arm_right=poses["right"],  # type: ignore[arg-type]
-                        arm_control=Control.ENABLE | Control.START_SPLINE)
-
     def _loop(self, plan: Plan, run: _Run, commands: Commands, emcy_mark: int) -> None:
-        bus, task = self.bus, plan.request.task
-        payload = self.config.lifting_payload_kg if task == "lifting" else 0.0
-        strike = self.config.strike_acc if task == "bracing" else None
-        ctl = BalanceController(self.design(task), self.config.robot, payload, strike_acc=strike)
+        bus, task = self.bus, plan.task
+        balance = task.balance
+        ctl = BalanceController(self.design(task.name), self.config.robot, balance.payload_kg,
+                                strike_acc=balance.strike_acc)
+        end = task.end_condition(plan.setup, bus.timing.period_s)
         bus.reset_pacing()
         overruns0 = bus.overruns
-        rest_needed = int(round(self.config.rest_s / bus.timing.period_s))
-        rest = 0
-        spline_cycles = (1 + int(math.ceil(plan.spline.duration / bus.timing.period_s))
-                         if plan.spline is not None else 0)
         try:
             tel = bus.cycle(commands)
             ctl.start(tel)
             run.samples.append(tel)
-            if plan.spline is not None:
-                commands = self._start_spline(plan, tel)
+            commands = task.begin(bus, plan.setup, tel, commands)
             while len(run.samples) < plan.n_cycles:
                 if self.stop_requested.is_set():
                     run.status, run.detail = "aborted", "stopped on request"
@@ -249,11 +225,10 @@ class EpisodeRunner:
                                     arm_control=commands.arm_control)
                 tel = bus.cycle(commands)
                 run.samples.append(tel)
-                if task == "lifting" and len(run.samples) > spline_cycles:
-                    rest = rest + 1 if self._at_goal(tel) else 0
-                    if rest >= rest_needed:
-                        run.detail = f"goal reached at {len(run.samples) * bus.timing.period_s:.3f} s"
-                        break
+                why = end(tel, len(run.samples))
+                if why is not None:
+                    run.detail = why
+                    break
             self._check_emcy(run, emcy_mark)
             self._flags(run, tel)
         finally:
@@ -263,12 +238,6 @@ class EpisodeRunner:
                 run.failures["fallen"] = True
             if ctl.released_cycle is not None and run.samples:
                 run.truth["balance_released_s"] = (ctl.released_cycle - run.samples[0].cycle) * bus.timing.period_s
-
-    def _at_goal(self, tel: Telemetry) -> bool:
-        robot, cfg = self.config.robot, self.config
-        h = float(robot.bottle_height(tel.arm_positions("left"), tel.arm_positions("right"), tel.pitch))
-        speed = robot.wheel_radius * (float(np.mean(tel.wheel_velocities)) + tel.pitch_rate)
-        return abs(h - cfg.lifting.goal_height) < cfg.goal_tolerance_m and abs(speed) < cfg.rest_speed_m_s
 
     def _check_emcy(self, run: _Run, emcy_mark: int) -> None:
         events = self.bus.emcy_events(emcy_mark + len(run.emcy))
@@ -297,9 +266,8 @@ class EpisodeRunner:
         period = self.bus.timing.period_s
         trace = Trace.from_samples(run.samples, period)
         run.count("emcy", len(run.emcy))
-        summary = costs.summary(trace, self.config.robot) if len(trace) else {"n_cycles": 0.0}
-        if request.task != "lifting":
-            summary.pop("final_bottle_height_m", None)
+        summary = costs.summary(trace, self.config.robot)
+        summary.update(plan.task.summary(trace))
         if len(trace):
             lat = np.array([s.latency_s for s in run.samples]) * 1000.0
             summary["sync_latency_p50_ms"] = float(np.percentile(lat, 50))
@@ -309,8 +277,7 @@ class EpisodeRunner:
         total = None
         if run.status == "ok":
             codes = [ev.code for ev in run.emcy]
-            terms = costs.cost_terms(request.task, trace, emcy_codes=codes,
-                                     goal_height=self.config.lifting.goal_height, robot=self.config.robot)
+            terms = plan.task.cost_terms(trace, codes)
             if terms.get("damage"):
                 run.failures["hardware_damage"] = True
             total = TASKS[request.task].total_cost(terms, self.config.weights.get(request.task))

@@ -2,9 +2,9 @@
 
 * liveliness token ``<prefix>/<robot>/agent/alive`` while the agent is up;
 * queryable ``<prefix>/<robot>/episode/run``: ``EpisodeRequest`` -> ``EpisodeResult``; every
-  refusal is a ``reply_err`` with an ``ErrorReply`` (invalid payload, unknown task, wrong
-  dimension, NaN, out of bounds -> ``invalid_request``; a spline outside the joint limits ->
-  ``invalid_request``; another episode running -> ``busy``; a controller refusing the
+  refusal is a ``reply_err`` with an ``ErrorReply`` (a task this agent does not serve, in the
+  contract or not -> ``unknown_task``; invalid payload, wrong dimension, NaN, out of bounds,
+  a spline outside the joint limits -> ``invalid_request``; another episode running -> ``busy``; a controller refusing the
   configuration -> ``fault``; a bug -> ``internal``). The agent stays ready for the next one.
 * publication ``<prefix>/<robot>/episode/done``: ``EpisodeDone`` after every episode it ran;
 * subscriber ``<prefix>/<robot>/agent/go``: the go signal of a person who reset a robot without
@@ -83,7 +83,7 @@ class AgentService:
         cfg = self.config
         self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
         self.runner = EpisodeRunner(self.bus, cfg.episode, go=self._wait_go)
-        for task in ("bracing", "lifting"):
+        for task in cfg.episode.tasks:
             self.runner.design(task)  # LQR gains once, before the first request
         zconf = make_config(cfg.zenoh_mode, connect=cfg.zenoh_connect, listen=cfg.zenoh_listen)
         self.session = open_session(zconf)
@@ -133,7 +133,7 @@ class AgentService:
         try:
             request = EpisodeRequest.from_json(query.payload if query.payload is not None else b"")
         except PayloadError as exc:
-            return self._refuse(query, ErrorReply.from_exception(exc, "invalid_request"))
+            return self._refuse(query, ErrorReply.from_exception(exc, _payload_code(exc)))
         except Exception as exc:  # never leave a query without a reply
             return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
         if not self._busy.acquire(blocking=False):
@@ -204,3 +204,9 @@ class AgentService:
         log.warning("no test bench: reset the robot, then put anything on %s", self.keys.agent_go)
         ok = self._go.wait(timeout_s)
         return ok and not (self.runner is not None and self.runner.stop_requested.is_set())
+
+
+def _payload_code(exc: PayloadError) -> str:
+    """``unknown_task`` for a request naming a task outside the contract (so not served
+    here either), ``invalid_request`` for anything else wrong with the payload."""
+    return "unknown_task" if isinstance(exc, InvalidField) and exc.field == "task" else "invalid_request"

@@ -1,4 +1,5 @@
-"""Cost terms: analytic integrals over synthetic traces, names and units of the contract."""
+"""Cost terms: analytic integrals over synthetic traces, names and units of the contract
+(the pure term functions of ``costs`` and the tasks that report them)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,6 +9,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.agent import costs
 from ersac_hil.agent.policies import LiftingPolicy
+from ersac_hil.agent.tasks import BracingTask, LiftingTask
 from ersac_hil.agent.robot import UBOT
 from ersac_hil.agent.telemetry import JOINTS, STATUS_DEVICES, Trace
 from protocol.can.objects import EmcyCode, Status
@@ -34,7 +36,7 @@ def test_bracing_terms_are_the_integrals(acc, amps, volts):
     cur[:, :3] = 100.0  # wheels and torso do not count as arm power
     volt[:, :3] = 10.0
     tr = trace(n, pitch_acc=np.full(n, acc), current=cur, voltage=volt)
-    terms = costs.cost_terms("bracing", tr)
+    terms = BracingTask().cost_terms(tr)
     assert list(terms) == list(TASKS["bracing"].term_names)
     assert terms["body_acc_sq"] == pytest.approx(acc * acc * 2.0)
     # consumed energy: a generating motor (I*V < 0) counts zero, never a credit
@@ -77,7 +79,8 @@ def test_lifting_terms_rolling_robot():
     pos[:, 3:5] = goal
     pos[:, 5:7] = goal
     tr = trace(n, position=pos, velocity=vel, pitch=pitch)
-    terms = costs.cost_terms("lifting", tr, goal_height=1.2)
+    terms = LiftingTask().cost_terms(tr)
+    assert list(terms) == list(TASKS["lifting"].term_names)
     assert terms["x_wheel_sq"] == pytest.approx(np.sum((r * omega * t) ** 2) * DT)
     assert terms["xdot_wheel_sq"] == pytest.approx((r * omega) ** 2 * n * DT)
     assert terms["alpha_sq"] == pytest.approx(0.01 * n * DT)
@@ -103,3 +106,5 @@ def test_summary_figures_are_finite_and_named():
     assert s["n_cycles"] == 20 and s["max_abs_pitch"] == pytest.approx(0.2)
     assert all(np.isfinite(v) for v in s.values())
     assert costs.summary(trace(0)) == {"n_cycles": 0.0}
+    assert "final_bottle_height_m" not in s  # a lifting figure (LiftingTask.summary)
+    assert LiftingTask().summary(trace(0)) == {}

@@ -10,8 +10,9 @@ import pytest
 
 from ersac_hil.agent.bus import AgentBus, BusTiming
 from ersac_hil.agent.configure import reset_scenario
-from ersac_hil.agent.episode import EpisodeRunner
+from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
+from ersac_hil.agent.tasks import BracingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
 from firmware_sim.nodes.simbench import SimulatedBench
 from protocol.can.busconfig import BusConfig
@@ -75,6 +76,16 @@ def test_sensible_spline_lifts_the_bottle_and_ends_at_the_goal(rig):
     assert r.duration_s < 6.0 and "goal reached" in r.detail
     assert set(r.cost_terms) == {"x_wheel_sq", "xdot_wheel_sq", "alpha_sq", "alphadot_sq",
                                  "h_error_sq", "power"}
+
+
+def test_a_task_the_agent_does_not_serve_is_refused_before_anything_moves(rig):
+    bench, bus, _ = rig
+    runner = EpisodeRunner(bus, EpisodeConfig(tasks={"bracing": BracingTask()}))
+    t0 = bench.sim.sim_time
+    with pytest.raises(UnknownTask, match="not served") as info:
+        runner.plan(EpisodeRequest("ep", "lifting", SENSIBLE_LIFT, 0))
+    assert info.value.code == "unknown_task" and bench.sim.sim_time == t0
+    assert runner.plan(EpisodeRequest("ep", "bracing", (0.3,), 0)).task.name == "bracing"
 
 
 def test_balances_ten_seconds_over_can_without_arm_motion(rig):

@@ -140,7 +140,6 @@ def _raw(obj: dict) -> bytes:
 
 
 INVALID = [
-    (_raw({"episode_id": "e1", "task": "juggling", "theta": [0.5], "seed": 1}), "unknown task"),
     (_raw({"episode_id": "e2", "task": "bracing", "theta": [0.5, 0.5], "seed": 1}), "expected 1 values"),
     (b'{"v": 1, "type": "episode_request", "episode_id": "e3", "task": "bracing", "theta": [NaN], "seed": 1}',
      "NaN"),
@@ -159,6 +158,8 @@ def test_invalid_requests_are_refused_and_the_agent_stays_ready(stack):
         result, error = ask(stack.session, payload)
         assert result is None and error.code == "invalid_request", (payload, result)
         assert needle in error.reason, (payload, error.reason)
+    result, error = ask(stack.session, _raw({"episode_id": "e1", "task": "juggling", "theta": [0.5], "seed": 1}))
+    assert result is None and error.code == "unknown_task" and "unknown task" in error.reason
     result, error = ask(stack.session, request("bracing", (0.5,), seed=4))
     assert error is None and result.status == "ok"
 

@@ -1,0 +1,124 @@
+"""Dynamic heavy lifting (paper Section 5.2): a 1 kg bottle with sloshing liquid from the
+ground to the goal height along a cubic spline in arm joint space.
+
+Plan: theta (7,) -> the checked spline of ``LiftingPolicy`` from the nominal start pose (a
+refusal before the robot is reset). After the first cycle the spline is planned again from the
+*measured* start pose of each arm (limits checked again), downloaded by SDO, and started by
+the next cycle's START_SPLINE. The episode ends after T = 6 s or at the goal: the spline
+finished, the bottle within ``goal_tolerance_m`` of the goal height and the ground speed below
+``rest_speed_m_s`` for ``rest_s``. The LQR is designed with the bottle at the hands.
+
+Cost terms (``costs``), x = [x_wheel, xdot_wheel, alpha, alpha_dot, h_error]:
+    x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
+                              both wheels, phi relative to the body, so phi + alpha is the
+                              wheel's absolute angle) from the start of the episode
+    xdot_wheel_sq [m^2/s]     int xdot^2 dt, xdot = r (phi_dot + alpha_dot)
+    alpha_sq      [rad^2 s]   int alpha^2 dt (IMU pitch, from vertical)
+    alphadot_sq   [rad^2/s]   int alpha_dot^2 dt
+    h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height from the measured arm
+                              angles and pitch (``RobotParameters.bottle_height``)
+    power         [J]         consumed electrical energy of all seven motors,
+                              int sum_all max(I*V, 0) dt
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ersac_hil.agent import configure, costs
+from ersac_hil.agent.bus import AgentBus
+from ersac_hil.agent.policies import LiftingPolicy, Spline
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.tasks.base import Balance, EndCondition, Task
+from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
+from protocol.can import objects as obj
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH
+from protocol.can.objects import Control, Index, Scenario
+
+
+@dataclass(frozen=True)
+class LiftingSetup:
+    """One lifting episode: theta and its spline from the nominal start (checked)."""
+    theta: tuple[float, ...]
+    spline: Spline
+
+
+@dataclass(frozen=True)
+class LiftingTask(Task[LiftingSetup]):
+    """Attributes:
+        policy: theta -> spline; the nominal start pose and the goal height.
+        payload_kg: the bottle, for the balance reference and the LQR model.
+        goal_tolerance_m, rest_speed_m_s, rest_s: the end condition at the goal.
+        robot: kinematics for the bottle height and the ground speed.
+    """
+    policy: LiftingPolicy = LiftingPolicy()
+    payload_kg: float = 1.0
+    goal_tolerance_m: float = 0.05
+    rest_speed_m_s: float = 0.05
+    rest_s: float = 0.25
+    robot: RobotParameters = UBOT
+    name = "lifting"
+    scenario = Scenario.LIFTING
+
+    @property
+    def balance(self) -> Balance:
+        return Balance(self.policy.start, self.payload_kg, None)
+
+    def plan(self, theta: Sequence[float]) -> LiftingSetup:
+        checked = self.spec.check_theta(theta)
+        return LiftingSetup(checked, self.policy.spline(checked))
+
+    def configure(self, bus: AgentBus, setup: LiftingSetup) -> Commands:
+        pose = self.policy.start
+        return Commands(arm_left=pose, arm_right=pose)
+
+    def begin(self, bus: AgentBus, setup: LiftingSetup, first: Telemetry, commands: Commands) -> Commands:
+        poses = {}
+        for arm, side in ((ARM_LEFT, "left"), (ARM_RIGHT, "right")):
+            start = tuple(float(q) for q in first.arm_positions(side))
+            poses[side] = (start[0], start[1])
+            configure.download_spline(bus, arm, self.policy.spline(setup.theta, poses[side]))
+        return Commands(arm_left=poses["left"], arm_right=poses["right"],
+                        torso_position=commands.torso_position,
+                        arm_control=Control.ENABLE | Control.START_SPLINE)
+
+    def end_condition(self, setup: LiftingSetup, period_s: float) -> EndCondition:
+        spline_cycles = 1 + int(math.ceil(setup.spline.duration / period_s))
+        rest_needed = int(round(self.rest_s / period_s))
+        rest = 0
+
+        def at_goal_and_resting(tel: Telemetry, cycles: int) -> str | None:
+            nonlocal rest
+            if cycles <= spline_cycles:
+                return None
+            rest = rest + 1 if self._at_goal(tel) else 0
+            return f"goal reached at {cycles * period_s:.3f} s" if rest >= rest_needed else None
+        return at_goal_and_resting
+
+    def _at_goal(self, tel: Telemetry) -> bool:
+        robot = self.robot
+        h = float(robot.bottle_height(tel.arm_positions("left"), tel.arm_positions("right"), tel.pitch))
+        speed = robot.wheel_radius * (float(np.mean(tel.wheel_velocities)) + tel.pitch_rate)
+        return abs(h - self.policy.goal_height) < self.goal_tolerance_m and abs(speed) < self.rest_speed_m_s
+
+    def cost_terms(self, trace: Trace, emcy_codes: Iterable[int] = ()) -> dict[str, float]:
+        robot, goal = self.robot, self.policy.goal_height
+        return self._checked({"x_wheel_sq": costs.x_wheel_sq(trace, robot),
+                              "xdot_wheel_sq": costs.xdot_wheel_sq(trace, robot),
+                              "alpha_sq": costs.alpha_sq(trace), "alphadot_sq": costs.alphadot_sq(trace),
+                              "h_error_sq": costs.h_error_sq(trace, goal, robot),
+                              "power": costs.power(trace)})
+
+    def summary(self, trace: Trace) -> dict[str, float]:
+        return {"final_bottle_height_m": float(costs.bottle_height(trace, self.robot)[-1])} if len(trace) else {}
+
+    def ground_truth(self, bus: AgentBus, flags: obj.Status) -> dict[str, float]:
+        out: dict[str, float] = {}
+        raw = int(bus.read(TESTBENCH, Index.BOTTLE_HEIGHT))
+        if raw != obj.HEIGHT.raw_min:
+            out["bench_bottle_height_m"] = obj.HEIGHT.from_raw(raw)
+        out["bench_bottle_dropped"] = float(bool(flags & obj.Status.BOTTLE_DROPPED))
+        return out
