@@ -47,9 +47,13 @@ class Standardisation:
 
     @classmethod
     def of(cls, y: np.ndarray) -> "Standardisation":
-        m = float(np.mean(y))
-        s = float(np.std(y))
-        if not np.isfinite(s) or s <= 1e-12 * max(1.0, abs(m)):
+        """Raises CriticInputError if the spread of y overflows (|y| beyond ~1e150)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            m = float(np.mean(y))
+            s = float(np.std(y))
+        if not (np.isfinite(m) and np.isfinite(s)):
+            raise CriticInputError(f"outputs span too large a range to fit (max |y| {float(np.max(np.abs(y))):.3g})")
+        if s <= 1e-12 * max(1.0, abs(m)):
             s = 1.0
         return cls(m, s)
 

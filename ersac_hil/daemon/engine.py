@@ -22,7 +22,12 @@ from protocol.zenoh import get_task
 
 from .store import UpdateRecord
 
-__all__ = ["Engine", "Proposal", "NotEnoughData"]
+__all__ = ["Engine", "Proposal", "NotEnoughData", "MAX_WEIGHT"]
+
+#: Largest accepted cost weight. The task's default weights are 1e-3..10; a risk context
+#: raises one by a few orders of magnitude at most. Far larger weights only make the costs
+#: overflow the critic's arithmetic (``body_acc_sq=1e300`` once crashed every update).
+MAX_WEIGHT = 1e6
 
 
 class NotEnoughData(RuntimeError):
@@ -50,6 +55,9 @@ class Engine:
         self.task = task
         self.spec = get_task(task)
         self._learner = learner
+        #: why the last :meth:`learn` took no step although past warm-up (the critic could
+        #: not fit; the episode is kept and the run goes on), else ``None``
+        self.last_skipped: str | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -67,6 +75,8 @@ class Engine:
             lr_range=tuple(settings["lr_range"]),
             seed=int(settings["seed"]),
             weights=CostWeights(dict(settings["weights"])),
+            max_step=settings.get("max_step"),
+            interleave_every=int(settings.get("interleave_every", 0)),
         )
         return cls(task, learner)
 
@@ -140,6 +150,7 @@ class Engine:
               episode_id: str, stamp_s: float) -> UpdateRecord:
         """Tell the learner the cost terms of the proposal's episode; the update as stored."""
         u = self._learner.tell(np.asarray(proposal.theta, dtype=float), dict(terms))
+        self.last_skipped = u.skipped
         opt = lambda v: None if v is None else float(v)  # noqa: E731
         return UpdateRecord(
             run_id=run_id, idx=idx, episode_id=episode_id,
@@ -157,7 +168,12 @@ class Engine:
         self._learner.reweight(CostWeights(dict(weights)))
 
     def check_weights(self, weights: Mapping[str, float]) -> None:
-        """Raise ``ValueError`` if ``weights`` would make any stored cost non-finite."""
+        """Raise ``ValueError`` unless every weight is within ``[0, MAX_WEIGHT]`` and the
+        weighted cost of every stored episode is finite (beyond that the costs are unusable
+        for the critic)."""
+        big = {k: v for k, v in weights.items() if not (0.0 <= float(v) <= MAX_WEIGHT)}
+        if big:
+            raise ValueError(f"weights must be within [0, {MAX_WEIGHT:g}], got {big}")
         w = CostWeights(dict(weights))
         store = self._learner.store
         if len(store) and set(w.names) == set(store.weights.names):

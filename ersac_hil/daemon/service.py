@@ -193,8 +193,9 @@ class Daemon:
             if outcome.status == "ok":
                 update = learning.commit_success(idx, request, outcome.result, proposal)
                 self._publish(idx, request, outcome.result, proposal, update.cost)
-                critic = ("J~ (warm-up)  r~ (warm-up)" if update.warmup
-                          else f"J~ {update.J:.4f}  r~ {update.r:.4f}")
+                skipped = learning.engine.last_skipped
+                critic = (f"update skipped ({skipped})" if skipped else "J~ (warm-up)  r~ (warm-up)"
+                          if update.warmup else f"J~ {update.J:.4f}  r~ {update.r:.4f}")
                 self._print(f"episode {idx + 1:4d}/{learning.budget}  theta {_fmt(update.theta_before)} -> "
                             f"{_fmt(update.theta_after)}  executed {_fmt(proposal.theta)}  "
                             f"cost {update.cost:.4f}  {critic}  kappa {update.kappa:g}")

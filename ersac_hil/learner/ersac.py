@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from ..critic import CriticConfig, CriticError, CriticEstimate, LocalCritic, LocalFit
+from ..critic import CriticConfig, CriticError, CriticEstimate, FitError, LocalCritic, LocalFit
 from ..critic._blas import single_threaded_blas
 from .costs import CostWeights, ObservationStore
 from .errors import (
@@ -66,8 +66,12 @@ STATE_VERSION = 1
 class Update:
     """Result of one tell().  Arrays have shape (d,).
 
-    J_tilde, r_tilde, r_tilde_perturbed, td_error are None for warm-up tells (no update).
-    step_size is alpha = clip(eta / r~(theta), lr_range) (0 in warm-up)."""
+    J_tilde, r_tilde, r_tilde_perturbed, td_error are None for warm-up tells and skipped
+    updates (no update).  step_size is alpha = clip(eta / r~(theta), lr_range) (0 in warm-up).
+    skipped: why the update was skipped (the critic could not fit; the observation is kept
+    and theta unchanged), else None.  step_scale: the factor the move guard applied to the
+    step (1.0: unchanged; see ERSAC max_step).  offline: theta_after is the offline argmin of
+    F~ on this update's critic (interleaved search), not the gradient step."""
 
     index: int
     theta_before: np.ndarray
@@ -84,6 +88,9 @@ class Update:
     warmup: bool
     clipped: bool
     n_neighbours: int
+    skipped: str | None = None
+    step_scale: float = 1.0
+    offline: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -148,6 +155,8 @@ class ERSAC:
         weights: CostWeights | None = None,
         critic: CriticConfig | None = None,
         min_observations: int | None = None,
+        max_step: float | None = None,
+        interleave_every: int = 0,
     ) -> None:
         b = np.asarray(bounds, dtype=float)
         if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
@@ -180,6 +189,10 @@ class ERSAC:
             raise InvalidInputError("min_observations must be an integer >= 3")
         if seed is not None and (not isinstance(seed, numbers.Integral) or seed < 0):
             raise InvalidInputError("seed must be a non-negative integer or None")
+        if max_step is not None and (_real(max_step, "max_step") <= 0):
+            raise InvalidInputError("max_step must be > 0 (in units of sigma) or None")
+        if isinstance(interleave_every, bool) or not isinstance(interleave_every, numbers.Integral) or interleave_every < 0:
+            raise InvalidInputError("interleave_every must be an integer >= 0 (0: off)")
 
         self._d = d
         self._theta = theta
@@ -187,6 +200,9 @@ class ERSAC:
         self._kappa = _real(kappa, "kappa", InvalidKappaError)
         self._lr = lr
         self._min_obs = int(m)
+        self._max_step = None if max_step is None else float(max_step)
+        self._interleave = int(interleave_every)
+        self._skipped: list[tuple[int, str]] = []
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._store = ObservationStore(d, weights)
         self._critic = LocalCritic(self._store, cfg)
@@ -269,6 +285,11 @@ class ERSAC:
         return len(self._store)
 
     @property
+    def skipped_updates(self) -> list[tuple[int, str]]:
+        """(update index, reason) of every update skipped because the critic could not fit."""
+        return list(self._skipped)
+
+    @property
     def store(self) -> ObservationStore:
         """The observations (read-only views; add through observe/tell)."""
         return self._store
@@ -313,8 +334,10 @@ class ERSAC:
         if self._fit_record is not None:
             try:
                 self._last_fit = self._critic.restore(self._fit_record)
-            except CriticError as exc:
-                raise StateError(f"cannot restore the critic fit: {exc}") from exc
+            except (CriticError, KeyError, TypeError, ValueError):
+                # a record that cannot be rebuilt only costs the warm start: the next
+                # update fits cold (the run stays resumable)
+                self._last_fit = None
             self._fit_record = None
 
     def tell(self, executed: object, cost: Mapping[str, float] | float) -> Update:
@@ -342,6 +365,8 @@ class ERSAC:
             raise
         self._theta = new_theta
         self._last_fit = fit
+        if upd.skipped is not None:
+            self._skipped.append((upd.index, upd.skipped))
         self._pending = None
         self._n_updates += 1
         return upd
@@ -355,24 +380,49 @@ class ERSAC:
         also_cold = every > 0 and self._n_updates % every == 0
         return self._critic.fit_ids(ids, warm_start=last, use_cache=False, also_cold=also_cold)
 
-    def _update(self, theta: np.ndarray, x: np.ndarray, z: np.ndarray, J_hat: float) -> tuple[Update, np.ndarray, LocalFit]:
+    def _update(self, theta: np.ndarray, x: np.ndarray, z: np.ndarray, J_hat: float) -> tuple[Update, np.ndarray, LocalFit | None]:
+        kappa = self._kappa
         with single_threaded_blas():
             try:
                 fit = self._update_fit(theta)
+                J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
+                _, r_p, _ = (float(v[0]) for v in fit.estimate_many(x[None, :]))
+                if not all(math.isfinite(v) for v in (J_t, r_t, r_p)) or r_t <= 0:
+                    raise FitError(f"non-finite critic values J~ {J_t}, r~ {r_t}, r~(theta+z) {r_p}")
             except CriticError as exc:
-                raise InsufficientDataError(f"critic fit failed: {exc}") from exc
-            J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
-            _, r_p, _ = (float(v[0]) for v in fit.estimate_many(x[None, :]))
-        kappa = self._kappa
+                # the observation is kept; theta and the fit chain stay as they were
+                reason = f"critic fit failed: {exc}"
+                upd = Update(
+                    self._n_updates, theta, theta.copy(), x, z, J_hat, None, None, None, None,
+                    kappa, 0.0, False, False, 0, skipped=reason,
+                )
+                return upd, theta, self._last_fit
         delta = J_hat - J_t + kappa * (r_p - r_t)
-        alpha = float(np.clip(self._eta / r_t, self._lr[0], self._lr[1])) if r_t > 0 else self._lr[1]
-        raw = theta - alpha * delta * z
+        alpha = float(np.clip(self._eta / r_t, self._lr[0], self._lr[1]))
+        step = -alpha * delta * z
+        scale = 1.0
+        if self._max_step is not None:
+            largest = float(np.max(np.abs(step) / self._sigma))
+            if largest > self._max_step:
+                scale = self._max_step / largest
+        raw = theta + scale * step
         new_theta = np.clip(raw, self._lo, self._hi)
+        clipped = bool(np.any(raw != new_theta))
+        offline = False
+        if self._interleave > 0 and (self._n_updates + 1) % self._interleave == 0:
+            with single_threaded_blas():
+                sel = minimise_on_fit(fit, self.bounds, kappa, new_theta, self._selection_config())
+            new_theta, offline = sel.theta.copy(), True
         upd = Update(
             self._n_updates, theta, new_theta.copy(), x, z, J_hat, J_t, r_t, r_p, delta,
-            kappa, alpha, False, bool(np.any(raw != new_theta)), int(fit.ids.size),
+            kappa, alpha, False, clipped, int(fit.ids.size), step_scale=scale, offline=offline,
         )
         return upd, new_theta, fit
+
+    def _selection_config(self) -> "SelectionConfig":
+        from .selection import SelectionConfig
+
+        return SelectionConfig(radius=0.5 * self._critic.config.epsilon)
 
     def observe(self, executed: object, cost: Mapping[str, float] | float) -> int:
         """Add a past observation without an update (rebuilding the critic); returns its index."""
@@ -438,6 +488,8 @@ class ERSAC:
             "kappa": self._kappa,
             "lr_range": [self._lr[0], self._lr[1]],
             "min_observations": self._min_obs,
+            "max_step": self._max_step,
+            "interleave_every": self._interleave,
             "critic": self._critic.config.to_dict(),
             "weights": self._store.weights.to_dict(),
             "rng": _rng_state_to_json(self._rng),
@@ -446,6 +498,7 @@ class ERSAC:
             "n_observations": max(len(self._store), self._expect_obs),
             "observations_sha256": self._digest(len(self._store)) if len(self._store) >= self._expect_obs else self._expect_digest,
             "last_fit": fit,
+            "skipped_updates": [[i, reason] for i, reason in self._skipped],
         }
 
     @classmethod
@@ -466,6 +519,8 @@ class ERSAC:
                 weights=CostWeights(state["weights"]),
                 critic=critic,
                 min_observations=state["min_observations"],
+                max_step=state.get("max_step"),
+                interleave_every=state.get("interleave_every", 0),
             )
             learner._rng = _rng_from_json(state["rng"])
             if state["pending"] is not None:
@@ -474,6 +529,7 @@ class ERSAC:
             learner._expect_obs = int(state["n_observations"])
             learner._expect_digest = state["observations_sha256"]
             learner._fit_record = state["last_fit"]
+            learner._skipped = [(int(i), str(reason)) for i, reason in state.get("skipped_updates", [])]
         except StateError:
             raise
         except (LearnerError, CriticError, KeyError, TypeError, ValueError) as exc:
@@ -481,4 +537,4 @@ class ERSAC:
         return learner
 
 
-from .selection import Selection  # noqa: E402  (type of ERSAC.select, avoids an import cycle)
+from .selection import Selection, SelectionConfig, minimise_on_fit  # noqa: E402  (avoids an import cycle)

@@ -88,7 +88,6 @@ def select_policy(
     N, d = pts.shape
     if N < 3:
         raise InsufficientDataError(f"selection needs at least 3 observations, has {N}")
-    lo, hi = bounds[:, 0], bounds[:, 1]
     with single_threaded_blas():
         if N <= config.max_points:
             ids = np.arange(N, dtype=np.int64)
@@ -98,7 +97,17 @@ def select_policy(
             fit = critic.fit_ids(ids, warm_start=warm_start)
         except CriticError as exc:
             raise InsufficientDataError(f"selection model fit failed: {exc}") from exc
-        Xd = pts[ids]
+        return minimise_on_fit(fit, bounds, kappa, anchor, config)
+
+
+def minimise_on_fit(fit: LocalFit, bounds: np.ndarray, kappa: float, anchor: np.ndarray, config: SelectionConfig) -> Selection:
+    """argmin of F~ of `fit` within `config.radius` of the fit's observations and inside
+    bounds (d, 2); SLSQP from the `n_starts` observed points of lowest F~ (module doc).
+    anchor (d,) is a candidate too (so the result is never worse than it under the model)."""
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    d = bounds.shape[0]
+    with single_threaded_blas():
+        Xd = np.asarray(fit.model.X)
         tree = cKDTree(Xd)
         R2 = config.radius**2
         _, _, Fd = fit.estimate_many(Xd, kappa)
@@ -117,6 +126,10 @@ def select_policy(
             _, j = tree.query(x)
             diff = x - Xd[j]
             return float(diff @ diff), diff
+
+        a = np.clip(np.asarray(anchor, dtype=float), lo, hi)
+        if dist2(a)[0] <= R2:
+            best = (float(fit.estimate_many(a[None, :], kappa)[2][0]), a.copy(), a.copy(), "anchor")
 
         for s in starts:
             track: dict[str, object] = {"F": math.inf, "x": s.copy()}
@@ -168,7 +181,7 @@ def select_policy(
         distance_to_data=math.sqrt(dist2(theta)[0]),
         radius=config.radius,
         start=best[2],
-        n_points=int(ids.size),
+        n_points=int(Xd.shape[0]),
         n_starts=len(starts),
         n_evaluations=n_eval,
         status=best[3],

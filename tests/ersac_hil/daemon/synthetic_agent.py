@@ -40,6 +40,12 @@ def synthetic_terms(theta: float, seed: int) -> dict[str, float]:
     return {"damage": damage, "body_acc_sq": float(body), "arm_power": 0.1 + 0.2 * theta}
 
 
+def _episode_index(episode_id: str) -> int:
+    """The episode index in the daemon's ids ``<run>.<idx:05d>.<attempt>`` (-1 otherwise)."""
+    parts = episode_id.rsplit(".", 2)
+    return int(parts[1]) if len(parts) == 3 and parts[1].isdigit() else -1
+
+
 def true_cost(theta: float) -> tuple[float, float]:
     """Mean and std of the synthetic total cost at theta (default weights)."""
     p = 0.8 * theta**3
@@ -61,12 +67,15 @@ class SyntheticAgent:
         always_fault: every episode ends with a fault.
         refuse_above: requests with theta[0] above this get ``reply_err`` ``invalid_request``
             (like the real agent refusing a spline outside the joint limits).
+        huge_cost_at: episode indices whose ``body_acc_sq`` is 1e200 (a valid but absurd
+            reading: no critic can fit a neighbourhood that holds it).
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, delay_s: float = 0.0,
                  fault_every: int = 0, always_fault: bool = False,
-                 refuse_above: float = math.inf) -> None:
+                 refuse_above: float = math.inf, huge_cost_at: tuple[int, ...] = ()) -> None:
         self.keys = keys
+        self.huge_cost_at = set(huge_cost_at)
         self.refuse_above = refuse_above
         self.always_fault = always_fault
         self.delay_s = delay_s
@@ -102,6 +111,8 @@ class SyntheticAgent:
                                        fault_counts={"pdo_timeouts": 1}, detail="synthetic PDO timeout")
             else:
                 terms = synthetic_terms(request.theta[0], request.seed)
+                if _episode_index(request.episode_id) in self.huge_cost_at:
+                    terms["body_acc_sq"] = 1e200
                 result = EpisodeResult(
                     request.episode_id, request.task, "ok", terms, request.spec.total_cost(terms),
                     failures={"hardware_damage": terms["damage"] > 0}, duration_s=2.0,

@@ -210,7 +210,8 @@ BAD_QUERIES = [
     ("select", "kappa=1;weights=bogus:1", "bogus"),
     ("select", "kappa=1;weights=damage:-1", "damage"),
     ("select", "kappa=1;adopt=maybe", "adopt"),
-    ("select", "kappa=1;weights=body_acc_sq:1e308", "non-finite"),
+    ("select", "kappa=1;weights=body_acc_sq:1e308", "within [0, 1e+06]"),
+    ("select", "kappa=1;weights=body_acc_sq:1e300", "within [0, 1e+06]"),
     ("state", "verbose=1", "verbose"),
 ]
 
@@ -244,7 +245,8 @@ BAD_PUTS = [
     ("weights", b'{"v": 1, "type": "weights_command", "weights": {}}', "empty"),
     ("weights", b'{"v": 1, "type": "weights_command", "weights": {"damage": -3}}', "minimum"),
     ("weights", b"\xff\xfe", "UTF-8"),
-    ("weights", WeightsCommand({"body_acc_sq": 1e308}).to_json(), "non-finite"),
+    ("weights", WeightsCommand({"body_acc_sq": 1e308}).to_json(), "within [0, 1e+06]"),
+    ("weights", WeightsCommand({"body_acc_sq": 1e300}).to_json(), "within [0, 1e+06]"),  # crashed the daemon once
 ]
 
 

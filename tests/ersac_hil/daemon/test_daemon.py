@@ -15,7 +15,7 @@ import pytest
 from conftest import HERE, wait_until
 from ersac_hil.daemon.clients import LearnerClient
 from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
-from ersac_hil.daemon.runs import open_run, scenario_seed
+from ersac_hil.daemon.runs import open_run, rebuild_engine, scenario_seed
 from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS
 from ersac_hil.daemon.store import Store
 from protocol.zenoh import KeySpace
@@ -176,6 +176,28 @@ def _ok_history(db: Path):
         episodes = [(e.idx, e.theta, e.seed, dict(e.cost_terms), e.cost) for e in store.ok_episodes(run.run_id)]
         updates = [(u.idx, u.theta_before, u.theta_after, u.J, u.r, u.kappa) for u in store.updates(run.run_id)]
         return run, episodes, updates, store.attempts(run.run_id)
+
+
+def test_a_critic_failure_mid_run_skips_updates_and_the_run_finishes(router, agent_factory, daemon_factory):
+    """Episode 14 reports body_acc_sq = 1e200: every critic fit over a neighbourhood holding it
+    fails. Those updates are skipped with the reason recorded, the run finishes, and the stored
+    run can still be rebuilt (the resume path)."""
+    agent_factory("sick", huge_cost_at=(14,))
+    out = io.StringIO()
+    daemon = daemon_factory("sick", episodes=20, out=out)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0, out.getvalue()
+    with Store(daemon.config.db, readonly=True) as store:
+        run = store.run(daemon.run.run_id)
+        updates = store.updates(run.run_id)
+        engine = rebuild_engine(store, run)
+    assert run.status == "finished" and len(updates) == 20
+    skipped = updates[-1].state["skipped_updates"]
+    assert skipped and skipped[0][0] == 14 and "critic fit failed" in skipped[0][1]
+    for u in updates:
+        if u.idx in {i for i, _ in skipped}:
+            assert u.theta_after == u.theta_before and u.J is None
+    assert "update skipped (critic fit failed" in out.getvalue()
+    assert engine.n_observations == 20 and len(engine.propose().theta) == 1
 
 
 def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path):

@@ -1,0 +1,115 @@
+"""ERSAC robustness: a critic that cannot fit skips the update, the move guard bounds a
+single update, a broken fit record does not block resume, interleaved offline search."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ersac_hil.learner import ERSAC, InvalidInputError
+
+BOUNDS = [[0.0, 1.0]]
+
+
+def J(t: float) -> float:
+    return 3.0 - 2.4 * t + 1.5 * t * t
+
+
+def r(t: float) -> float:
+    return 0.1 + 1.2 * t * t
+
+
+def make(**kw) -> ERSAC:
+    args = dict(theta0=[0.3], sigma=0.1, eta=0.1, kappa=0.0, epsilon=0.3, bounds=BOUNDS, seed=3)
+    args.update(kw)
+    return ERSAC(**args)
+
+
+def run(L: ERSAC, n: int, cost=None, noise_seed: int = 1):  # noqa: ANN001
+    noise = np.random.default_rng(noise_seed)
+    out = []
+    for i in range(n):
+        x = L.ask()
+        c = J(x[0]) + r(x[0]) * noise.standard_normal()
+        out.append(L.tell(x, c if cost is None else cost(i, c)))
+    return out
+
+
+def resume(L: ERSAC) -> ERSAC:
+    R = ERSAC.from_state(json.loads(json.dumps(L.get_state())))
+    for x, c in zip(L.store.points, L.store.costs):
+        R.observe(x, float(c))
+    return R
+
+
+def test_a_critic_that_cannot_fit_skips_the_update_and_the_run_goes_on() -> None:
+    L = make()
+    # episode 20 reports a cost whose square overflows: no GP/VHGP fit of any neighbourhood
+    # holding it is numerically possible
+    ups = run(L, 40, cost=lambda i, c: 1e200 if i == 20 else c)
+    assert all(u.skipped is None for u in ups[:20])
+    skipped = [u for u in ups[20:] if u.skipped is not None]
+    assert skipped and "critic fit failed" in skipped[0].skipped
+    for u in skipped:
+        np.testing.assert_array_equal(u.theta_before, u.theta_after)
+        assert u.J_tilde is None and u.step_size == 0.0 and not u.warmup
+    assert L.n_observations == 40 and L.n_updates == 40  # every observation kept
+    # the run is resumable and continues exactly like the uninterrupted learner
+    R = resume(L)
+    xa, xb = L.ask(), R.ask()
+    np.testing.assert_array_equal(xa, xb)
+    assert L.tell(xa, 2.0).to_dict() == R.tell(xb, 2.0).to_dict()
+
+
+def test_a_fit_record_that_cannot_be_rebuilt_does_not_block_resume() -> None:
+    L = make()
+    run(L, 20)
+    state = json.loads(json.dumps(L.get_state()))
+    state["last_fit"]["params"]["log_lambda"] = state["last_fit"]["params"]["log_lambda"][:-1]
+    R = ERSAC.from_state(state)
+    for x, c in zip(L.store.points, L.store.costs):
+        R.observe(x, float(c))
+    u = R.tell(R.ask(), 2.0)
+    assert u.skipped is None and u.J_tilde is not None
+
+
+def test_the_move_guard_bounds_an_outlier_update() -> None:
+    """An injected outlier cost at a 2.5-sigma perturbation: without the guard the paper's
+    step throws theta by many sigma; with max_step = 3 no coordinate moves more than 3 sigma,
+    the step keeps its direction and the scale is recorded."""
+    moves = {}
+    for guard in (None, 3.0):
+        L = make(max_step=guard, sigma=0.05, theta0=[0.5], lr_range=(0.01, 0.5))
+        run(L, 20)
+        L._pending = np.array([0.5 * 0 + L.theta[0] + 2.5 * 0.05])  # a 2.5-sigma draw
+        u = L.tell(L.pending, 60.0)  # an outlier episode
+        moves[guard] = (u.theta_after - u.theta_before)[0] / 0.05
+        if guard is None:
+            assert u.step_scale == 1.0
+        else:
+            assert u.step_scale < 1.0 and u.to_dict()["step_scale"] == u.step_scale
+    assert abs(moves[None]) > 6.0 or moves[None] <= -L.theta[0] / 0.05  # thrown (or clipped at the bound)
+    assert abs(moves[3.0]) <= 3.0 + 1e-9 and np.sign(moves[3.0]) == np.sign(moves[None])
+
+
+def test_interleaved_search_moves_to_the_local_argmin_every_k_updates() -> None:
+    L = make(interleave_every=4, kappa=2.0)
+    ups = run(L, 30)
+    real = [u for u in ups if not u.warmup]
+    assert [u.offline for u in ups] == [(u.index + 1) % 4 == 0 and not u.warmup for u in ups]
+    for u in real:
+        if u.offline:  # within the trust region of the critic's points
+            assert np.min(np.abs(L.store.points[:u.index + 1, 0] - u.theta_after[0])) <= 0.5 * 0.3 / 2 + 1e-9
+    R = resume(L)  # the option survives the state round trip
+    assert R.get_state()["interleave_every"] == 4
+    xa, xb = L.ask(), R.ask()
+    assert L.tell(xa, 2.0).to_dict() == R.tell(xb, 2.0).to_dict()
+
+
+@pytest.mark.parametrize("kw", [dict(max_step=0.0), dict(max_step=-1.0), dict(max_step=float("nan")),
+                                dict(interleave_every=-1), dict(interleave_every=1.5), dict(interleave_every=True)])
+def test_bad_options_are_refused(kw) -> None:  # noqa: ANN001
+    with pytest.raises(InvalidInputError):
+        make(**kw)
