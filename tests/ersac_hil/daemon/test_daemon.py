@@ -187,7 +187,7 @@ def test_a_critic_failure_mid_run_skips_updates_and_the_run_finishes(router, age
     daemon = daemon_factory("sick", episodes=20, out=out)
     assert daemon.finished.wait(60) and daemon.exit_code == 0, out.getvalue()
     with Store(daemon.config.db, readonly=True) as store:
-        run = store.run(daemon.run.run_id)
+        run = store.run(daemon.learning.run_id)
         updates = store.updates(run.run_id)
         engine = rebuild_engine(store, run)
     assert run.status == "finished" and len(updates) == 20
