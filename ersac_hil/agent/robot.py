@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from protocol.can.objects import OBJECTS, Index
+
 
 @dataclass(frozen=True)
 class Part:
@@ -86,8 +88,8 @@ class RobotParameters:
     shoulder_range: tuple[float, float] = (-1.0, 3.4)
     elbow_range: tuple[float, float] = (-0.1, 2.6)
     arm_velocity_limit: float = 10.0
-    stiffness_max: float = 500.0
-    damping_max: float = 50.0
+    stiffness_max: float = OBJECTS[Index.STIFFNESS].limits[1]
+    damping_max: float = OBJECTS[Index.DAMPING].limits[1]
     shoulder_armature: float = 0.0858
     elbow_armature: float = 0.0482
     gravity: float = 9.81

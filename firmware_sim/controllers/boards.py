@@ -14,15 +14,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from protocol.can.objects import OBJECTS, Index
+
 from ..plant.physics import AXES
 from .errors import ConfigRangeError, ConfigStateError, UnknownAxisError
 from .firmware import Firmware
 from .spline import HermiteSpline
 
-STIFFNESS_RANGE = (0.0, 500.0)
-"""N m/rad accepted by the impedance law; the agent's bracing map uses 8..450."""
-DAMPING_RANGE = (0.0, 50.0)
-"""N m s/rad."""
+STIFFNESS_RANGE = OBJECTS[Index.STIFFNESS].limits
+"""N m/rad accepted by the impedance law (the EDS range of 0x2030)."""
+DAMPING_RANGE = OBJECTS[Index.DAMPING].limits
+"""N m s/rad (the EDS range of 0x2031)."""
 VELOCITY_LIMIT_RANGE = (0.01, 30.0)
 """rad/s."""
 OVERCURRENT_TIME_RANGE = (0.001, 1.0)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 class Index(enum.IntEnum):
@@ -79,6 +79,29 @@ class Scenario(enum.IntEnum):
     LIFTING = 2
 
 
+class DataType(enum.IntEnum):
+    """CiA 301 data type codes (EDS ``DataType``)."""
+    BOOLEAN = 0x0001
+    INT8 = 0x0002
+    INT16 = 0x0003
+    INT32 = 0x0004
+    UINT8 = 0x0005
+    UINT16 = 0x0006
+    UINT32 = 0x0007
+    REAL32 = 0x0008
+    VISIBLE_STRING = 0x0009
+
+    @property
+    def bits(self) -> int:
+        return {DataType.BOOLEAN: 1, DataType.INT8: 8, DataType.UINT8: 8, DataType.INT16: 16,
+                DataType.UINT16: 16, DataType.INT32: 32, DataType.UINT32: 32,
+                DataType.REAL32: 32}[self]
+
+    @property
+    def signed(self) -> bool:
+        return self in (DataType.INT8, DataType.INT16, DataType.INT32)
+
+
 @dataclass(frozen=True)
 class Scale:
     """``value_SI = raw * factor``. ``bits``/``signed`` give the integer range for saturation."""
@@ -110,25 +133,117 @@ class Scale:
         return raw * self.factor
 
 
-POSITION = Scale(1e-4, "rad")
-WHEEL_POSITION = Scale(1e-4, "rad", bits=32)
-VELOCITY = Scale(1e-3, "rad/s")
-CURRENT = Scale(1e-3, "A")
-VOLTAGE = Scale(1e-3, "V")
-TORQUE = Scale(1e-3, "N m")
-STIFFNESS = Scale(1e-2, "N m/rad", signed=False)
-DAMPING = Scale(1e-3, "N m s/rad", signed=False)
-CURRENT_LIMIT = Scale(1e-3, "A", signed=False)
-VELOCITY_LIMIT = Scale(1e-3, "rad/s", signed=False)
-KNOT_TIME = Scale(1e-3, "s", signed=False)
-PITCH = Scale(1e-4, "rad")
-PITCH_RATE = Scale(1e-3, "rad/s")
-PITCH_ACCELERATION = Scale(0.1, "rad/s^2")
-ACCELERATION = Scale(0.01, "m/s^2")
-MOMENTUM = Scale(0.01, "N s", signed=False)
-TENSION = Scale(0.1, "N", signed=False)
-HEIGHT = Scale(1e-3, "m")
-SIM_TIME = Scale(1e-6, "s", bits=32, signed=False)
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One manufacturer object as every device that has it agrees on it.
+
+    ``low``/``high`` are raw limits (EDS ``LowLimit``/``HighLimit``); ``factor``/``unit`` the
+    scaling (EDS ``Factor``/``Unit``: ``value_SI = raw * factor``), or ``meaning`` for values
+    that are codes or bits (EDS ``Description``). Which devices have an object, as VAR or as
+    an ARRAY over their axes, and with which default, is in each device's EDS file.
+    """
+    index: int
+    name: str
+    dtype: DataType
+    access: str = "rw"
+    pdo: bool = False
+    low: int | None = None
+    high: int | None = None
+    factor: float | None = None
+    unit: str = ""
+    meaning: str = ""
+
+    @property
+    def scale(self) -> Scale:
+        if self.factor is None:
+            raise ValueError(f"object 0x{self.index:04X} ({self.name}) has no scaling")
+        return Scale(self.factor, self.unit, self.dtype.bits, self.dtype.signed)
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        """(low, high) in SI units (both limits must be set)."""
+        if self.low is None or self.high is None:
+            raise ValueError(f"object 0x{self.index:04X} ({self.name}) has no range")
+        return self.scale.from_raw(self.low), self.scale.from_raw(self.high)
+
+    def at(self, index: int, name: str) -> "ObjectSpec":
+        """The same kind of object at another index (per-axis spline arrays)."""
+        return replace(self, index=index, name=name)
+
+
+_T = DataType
+_PI_1E4 = 31416  # +-pi in 1e-4 rad
+OBJECTS: dict[int, ObjectSpec] = {o.index: o for o in (
+    ObjectSpec(Index.POSITION, "Position actual", _T.INT16, "ro", True, factor=1e-4, unit="rad"),
+    ObjectSpec(Index.VELOCITY, "Velocity actual", _T.INT16, "ro", True, factor=1e-3, unit="rad/s"),
+    ObjectSpec(Index.CURRENT, "Motor current", _T.INT16, "ro", True, factor=1e-3, unit="A"),
+    ObjectSpec(Index.VOLTAGE, "Motor voltage", _T.INT16, "ro", True, factor=1e-3, unit="V"),
+    ObjectSpec(Index.STATUS, "Status word", _T.UINT16, "ro", True, meaning="status bits"),
+    ObjectSpec(Index.CONTROL, "Control word", _T.UINT16, "rw", True, meaning="control bits"),
+    ObjectSpec(Index.TORQUE_COMMAND, "Torque command", _T.INT16, "rw", True, -20000, 20000, 1e-3, "N m"),
+    ObjectSpec(Index.POSITION_SETPOINT, "Position setpoint", _T.INT16, "rw", True, -_PI_1E4, _PI_1E4,
+               1e-4, "rad"),
+    ObjectSpec(Index.STIFFNESS, "Joint stiffness", _T.UINT16, "rw", False, 0, 50000, 1e-2, "N m/rad"),
+    ObjectSpec(Index.DAMPING, "Joint damping", _T.UINT16, "rw", False, 0, 50000, 1e-3, "N m s/rad"),
+    ObjectSpec(Index.POSITION_LIMIT_MIN, "Position limit min", _T.INT16, "rw", False, -_PI_1E4, _PI_1E4,
+               1e-4, "rad"),
+    ObjectSpec(Index.POSITION_LIMIT_MAX, "Position limit max", _T.INT16, "rw", False, -_PI_1E4, _PI_1E4,
+               1e-4, "rad"),
+    ObjectSpec(Index.CURRENT_LIMIT, "Current limit", _T.UINT16, "rw", False, 0, 30000, 1e-3, "A"),
+    ObjectSpec(Index.VELOCITY_LIMIT, "Velocity limit", _T.UINT16, "rw", False, 0, 30000, 1e-3, "rad/s"),
+    ObjectSpec(Index.SPLINE_KNOT_COUNT, "Spline knot count", _T.UINT8, "rw", False, 0, SPLINE_MAX_KNOTS,
+               meaning="knots (writing it loads the spline)"),
+    ObjectSpec(Index.SPLINE_KNOT_TIME, "Spline knot time", _T.UINT16, "rw", False, 0, 60000, 1e-3, "s"),
+    ObjectSpec(Index.SPLINE_POSITION, "Spline position", _T.INT16, "rw", False, -_PI_1E4, _PI_1E4,
+               1e-4, "rad"),
+    ObjectSpec(Index.SPLINE_VELOCITY, "Spline velocity", _T.INT16, "rw", False, -30000, 30000, 1e-3, "rad/s"),
+    ObjectSpec(Index.PITCH, "Pitch", _T.INT16, "ro", True, factor=1e-4, unit="rad"),
+    ObjectSpec(Index.PITCH_RATE, "Pitch rate", _T.INT16, "ro", True, factor=1e-3, unit="rad/s"),
+    ObjectSpec(Index.PITCH_ACCELERATION, "Pitch acceleration", _T.INT16, "ro", True, factor=0.1,
+               unit="rad/s^2"),
+    ObjectSpec(Index.ACCELERATION_X, "Acceleration x", _T.INT16, "ro", True, factor=0.01, unit="m/s^2"),
+    ObjectSpec(Index.ACCELERATION_Z, "Acceleration z", _T.INT16, "ro", True, factor=0.01, unit="m/s^2"),
+    ObjectSpec(Index.SCENARIO, "Scenario", _T.UINT8, "rw", False, min(Scenario), max(Scenario),
+               meaning=", ".join(f"{s.value} {s.name.lower()}" for s in Scenario)),
+    ObjectSpec(Index.SEED, "Seed", _T.UINT32, "rw", meaning="random seed of the next reset"),
+    ObjectSpec(Index.RESET, "Reset", _T.UINT8, "rw", False, 0, 1, meaning="write 1: reset scenario"),
+    ObjectSpec(Index.IMPACT_TRIGGER, "Impact trigger", _T.UINT8, "rw", False, 0, 1,
+               meaning="write 1: release pendulum"),
+    ObjectSpec(Index.IMPACT_MOMENTUM, "Impact momentum", _T.UINT16, "ro", factor=0.01, unit="N s"),
+    ObjectSpec(Index.CABLE_TENSION, "Cable tension", _T.UINT16, "ro", factor=0.1, unit="N"),
+    ObjectSpec(Index.BOTTLE_HEIGHT, "Bottle height", _T.INT16, "ro", factor=1e-3, unit="m"),
+    ObjectSpec(Index.SIM_TIME, "Simulated time", _T.UINT32, "ro", factor=1e-6, unit="s"),
+    ObjectSpec(Index.GROUND_TRUTH_FLAGS, "Ground truth flags", _T.UINT16, "ro", meaning="status bits"),
+    ObjectSpec(Index.BALANCE_FREE, "Balance free", _T.UINT8, "rw", False, 0, 1,
+               meaning="1: wheels passive"),
+    ObjectSpec(Index.BOTTLE_COM_HEIGHT, "Bottle COM height", _T.INT16, "ro", factor=1e-3, unit="m"),
+)}
+"""Every manufacturer object of the bench by index: the one source of its name, data type,
+access, PDO mappability, raw limits and scaling. ``tools/gen_eds.py`` writes the EDS files from
+it; agent and simulator scale with the ``Scale`` constants below, taken from it."""
+
+WHEEL_POSITION_OBJECT = replace(OBJECTS[Index.POSITION], dtype=DataType.INT32)
+"""The wheel controller reports its positions in 32 bits (a wheel turns without end)."""
+
+POSITION = OBJECTS[Index.POSITION].scale
+WHEEL_POSITION = WHEEL_POSITION_OBJECT.scale
+VELOCITY = OBJECTS[Index.VELOCITY].scale
+CURRENT = OBJECTS[Index.CURRENT].scale
+VOLTAGE = OBJECTS[Index.VOLTAGE].scale
+TORQUE = OBJECTS[Index.TORQUE_COMMAND].scale
+STIFFNESS = OBJECTS[Index.STIFFNESS].scale
+DAMPING = OBJECTS[Index.DAMPING].scale
+CURRENT_LIMIT = OBJECTS[Index.CURRENT_LIMIT].scale
+VELOCITY_LIMIT = OBJECTS[Index.VELOCITY_LIMIT].scale
+KNOT_TIME = OBJECTS[Index.SPLINE_KNOT_TIME].scale
+PITCH = OBJECTS[Index.PITCH].scale
+PITCH_RATE = OBJECTS[Index.PITCH_RATE].scale
+PITCH_ACCELERATION = OBJECTS[Index.PITCH_ACCELERATION].scale
+ACCELERATION = OBJECTS[Index.ACCELERATION_X].scale
+MOMENTUM = OBJECTS[Index.IMPACT_MOMENTUM].scale
+TENSION = OBJECTS[Index.CABLE_TENSION].scale
+HEIGHT = OBJECTS[Index.BOTTLE_HEIGHT].scale
+SIM_TIME = OBJECTS[Index.SIM_TIME].scale
 
 
 class Status(enum.IntFlag):

@@ -1,0 +1,82 @@
+"""The agent's PDO scaling against the EDS files: what ``Telemetry.decode`` makes of the
+counts of every TPDO entry, and the counts ``Commands.raw`` puts in every RPDO entry, are what
+the EDS ``Factor`` of that object says (canopen's own ``decode_phys``/``encode_phys``)."""
+from __future__ import annotations
+
+import pytest
+from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary.datatypes import SIGNED_TYPES
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, JOINT_INDEX, Commands, Telemetry
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, object_dictionary
+from protocol.can.objects import Control, Index
+from protocol.can.pdo import pdo_maps
+
+AXIS_FIELDS = {Index.POSITION: "position", Index.VELOCITY: "velocity", Index.CURRENT: "current",
+               Index.VOLTAGE: "voltage"}
+IMU_FIELDS = {Index.PITCH: "pitch", Index.PITCH_RATE: "pitch_rate", Index.PITCH_ACCELERATION: "pitch_acc",
+              Index.ACCELERATION_X: "acc_x", Index.ACCELERATION_Z: "acc_z"}
+
+
+def _var(dev, index: int, sub: int) -> ODVariable:
+    obj = object_dictionary(dev)[index]
+    return obj if isinstance(obj, ODVariable) else obj[sub]
+
+
+def _counts(var: ODVariable) -> st.SearchStrategy[int]:
+    bits = len(var)
+    if var.data_type in SIGNED_TYPES:
+        return st.integers(-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
+    return st.integers(0, (1 << bits) - 1)
+
+
+TPDO_ENTRIES = [(dev, e.index, e.subindex) for dev in CYCLIC for p in pdo_maps(dev)
+                if p.direction == "tpdo" for e in p.entries]
+
+
+@st.composite
+def tpdo_counts(draw) -> dict[str, dict[tuple[int, int], int]]:
+    raw: dict[str, dict[tuple[int, int], int]] = {d.name: {} for d in CYCLIC}
+    for dev, index, sub in TPDO_ENTRIES:
+        raw[dev.name][(index, sub)] = draw(_counts(_var(dev, index, sub)))
+    return raw
+
+
+@settings(max_examples=50, deadline=None)
+@given(tpdo_counts())
+def test_telemetry_decodes_with_the_eds_factor(raw):
+    t = Telemetry.decode(7, raw)
+    for dev in ACTUATED:
+        for sub in range(1, len(dev.joints) + 1):
+            j = JOINT_INDEX[(dev.name, sub)]
+            for index, field in AXIS_FIELDS.items():
+                expected = _var(dev, index, sub).decode_phys(raw[dev.name][(index, sub)])
+                assert getattr(t, field)[j] == pytest.approx(expected), (dev.name, field, sub)
+    for index, field in IMU_FIELDS.items():
+        assert getattr(t, field) == pytest.approx(_var(IMU, index, 0).decode_phys(raw[IMU.name][(index, 0)]))
+
+
+angles = st.floats(-3.0, 3.0, allow_nan=False)
+
+
+@given(st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0)), angles,
+       st.tuples(angles, angles), st.tuples(angles, angles))
+def test_commands_encode_with_the_eds_factor(torque, torso, left, right):
+    commands = Commands(wheel_torque=torque, torso_position=torso, arm_left=left, arm_right=right)
+    si = {(WHEELS.name, Index.TORQUE_COMMAND): torque, (TORSO.name, Index.POSITION_SETPOINT): (torso,),
+          (ARM_LEFT.name, Index.POSITION_SETPOINT): left, (ARM_RIGHT.name, Index.POSITION_SETPOINT): right}
+    for dev in ACTUATED:
+        raw = commands.raw(dev.name)
+        rpdo_keys = {(e.index, e.subindex) for p in pdo_maps(dev) if p.direction == "rpdo" for e in p.entries}
+        assert set(raw) == rpdo_keys, dev.name
+        for (index, sub), count in raw.items():
+            if index == Index.CONTROL:
+                assert Control(count) & Control.ENABLE
+                continue
+            var = _var(dev, index, sub)
+            value = si[(dev.name, index)][sub - 1]
+            expected = var.encode_phys(value)
+            lo, hi = -(1 << (len(var) - 1)), (1 << (len(var) - 1)) - 1  # saturation at the type
+            assert count == min(max(expected, lo), hi), (dev.name, index, sub, value)
