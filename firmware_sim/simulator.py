@@ -101,7 +101,8 @@ class GroundTruth:
 
     cable tensions (N, now and episode peak), bottle height of the shell centre and the
     shell+liquid centre of mass (m, NaN without a bottle), the drawn impact momentum (N s,
-    NaN outside bracing) and launch time (s, NaN before), noise-free IMU values.
+    NaN outside bracing) and launch time (s, NaN before), noise-free IMU values, the drawn
+    breaking tensions of this episode's elbow cables (N).
     """
 
     scenario: str
@@ -122,6 +123,8 @@ class GroundTruth:
     pitch_rate: float
     pitch_acc: float
     base_x: float
+    cable_strength_left: float = float("nan")
+    cable_strength_right: float = float("nan")
 
 
 class _Rig:
@@ -152,7 +155,7 @@ class Simulator:
             must be at most 1 ms.
         balance_free: wheels passive (their drivers ignore torque commands), kept over resets.
         imu_noise: noise standard deviations of the IMU.
-        cable: elbow cable constants (breaking tension).
+        cable: elbow cable constants (median breaking tension, strength scatter).
     """
 
     def __init__(self, control_period: float = 0.005, substeps: int = 5, *,
@@ -193,10 +196,12 @@ class Simulator:
                        self._cable)
             self._rigs[scenario] = rig
         self._rig, self._seed = rig, int(seed)
-        scenario_rng, imu_rng = (np.random.default_rng(s)
-                                 for s in np.random.SeedSequence(int(seed)).spawn(2))
+        # streams: scenario, IMU noise, cable strengths (spawn(3)[:2] == spawn(2): adding the
+        # cable stream left the scenario and IMU draws of every seed unchanged)
+        scenario_rng, imu_rng, cable_rng = (np.random.default_rng(s)
+                                            for s in np.random.SeedSequence(int(seed)).spawn(3))
         phys = rig.physics
-        rig.cables.reset()                         # restores the model fields it edits
+        rig.cables.reset(cable_rng)                # restores the model fields it edits
         phys.reset()
         rig.scenario.initialize_episode(phys, scenario_rng)
         rig.firmware.reset()
@@ -254,9 +259,12 @@ class Simulator:
         for i in over:
             events.append(FailureEvent(FailureKind.OVER_CURRENT, t, AXES[i], _BOARD_OF_AXIS[AXES[i]]))
         for side in snapped:
-            axis = ELBOWS[side]
+            axis, board = ELBOWS[side], f"arm_{SIDES[side]}"
             fw.disconnect(AXES.index(axis))
-            events.append(FailureEvent(FailureKind.CABLE_BROKEN, t, axis, f"arm_{SIDES[side]}"))
+            # the arm board's fault reaction: a lost transmission stops the whole arm (safe
+            # state, zero torque on shoulder and elbow), so the arm goes limp
+            self._boards[board].enter_safe_state("elbow cable broken")
+            events.append(FailureEvent(FailureKind.CABLE_BROKEN, t, axis, board))
 
     def _snapshot_electrical(self) -> None:
         """Motor currents/voltages of the substep just integrated (forces and speeds at the
@@ -330,7 +338,8 @@ class Simulator:
             bottle_height=scen.bottle_height(phys), bottle_com=(float(com[0]), float(com[1]), float(com[2])),
             fallen=rig.falls.fallen, damaged=bool(cables.broken.any()),
             bottle_dropped=scen.bottle_dropped, pitch=imu.pitch, pitch_rate=imu.pitch_rate,
-            pitch_acc=imu.pitch_acc, base_x=float(phys.data.xpos[phys.base_id][0]))
+            pitch_acc=imu.pitch_acc, base_x=float(phys.data.xpos[phys.base_id][0]),
+            cable_strength_left=float(cables.strength[0]), cable_strength_right=float(cables.strength[1]))
 
     # ---- boards ---------------------------------------------------------------------------
     def controller(self, name: str) -> MotorController:

@@ -3,10 +3,11 @@
 *Bracing* (theta in [0, 1]): the stiffness of all four arm joints, log-linear between
 ``k_min`` and ``k_max``::
 
-    K(theta) = k_min * (k_max / k_min) ** theta          [N m/rad], default 8 .. 450
+    K(theta) = k_min * (k_max / k_min) ** theta          [N m/rad], default 20 .. 135
 
-(equal ratios of stiffness per equal step of theta; 450 is below the boards' 500 N m/rad
-limit), with stiffness-proportional damping at the arm boards' own damping time::
+(equal ratios of stiffness per equal step of theta; the range is where the arms' stiffness
+shapes the catch: below ~15 N m/rad the arms collapse and the shell strikes the floor, above
+~130 the holding energy no longer falls and the elbow cables break for most impacts), with stiffness-proportional damping at the arm boards' own damping time::
 
     D(theta) = damping_time * K(theta)                   [N m s/rad], damping_time = 10 ms
 
@@ -64,8 +65,8 @@ class BracingPolicy:
         damping_time: D / K of every arm joint [s].
         pose: (shoulder, elbow) setpoints held during the episode [rad].
     """
-    k_min: float = 8.0
-    k_max: float = 450.0
+    k_min: float = 20.0
+    k_max: float = 135.0
     damping_time: float = 0.01
     pose: tuple[float, float] = (0.5, 0.75)
     robot: RobotParameters = UBOT

@@ -7,7 +7,9 @@ joint torque to the forearm. The loaded strand carries::
     T = T_pre + |tau_elbow| / r,        tau_elbow = G * (motor torque actually applied)
 
 (the equivalent of a spatial tendon that is taut only on its loaded side, without a second
-tendon per side). When ``T`` exceeds ``breaking_tension`` the cable snaps: the elbow loses its
+tendon per side). Cables differ in strength (wire-rope tolerance, crimps, wear): each
+episode draws each cable's breaking tension around the median (``CableSpec.strength_cv``).
+When ``T`` exceeds that cable's strength the cable snaps: the elbow loses its
 transmission and goes limp (zero torque, rotor decoupled) for the rest of the episode. The
 check runs after every physics substep, so torque spikes inside a control period count.
 Stiff bracing arms load the cable most: their impedance torque K * (q_ref - q) grows fastest
@@ -31,16 +33,33 @@ FALL_GEOMS = ("chassis", "battery", "torso", "upper_arm_left", "upper_arm_right"
 
 @dataclass(frozen=True)
 class CableSpec:
-    """Elbow cable constants. pulley_radius (m), pretension (N), breaking_tension (N)."""
+    """Elbow cable constants: pulley_radius (m), pretension (N), breaking_tension (N, the
+    median strength of a cable), strength_cv (relative standard deviation of the strength from
+    cable to cable: each episode's two cables are drawn independently, normal, clipped to
+    +-3 cv; 0 = every cable exactly at breaking_tension)."""
 
     pulley_radius: float = 0.02
     pretension: float = 40.0
-    breaking_tension: float = 1240.0
+    breaking_tension: float = 1050.0
+    strength_cv: float = 0.10
+
+    def __post_init__(self) -> None:
+        if not (self.pulley_radius > 0 and 0 <= self.pretension < self.breaking_tension
+                and 0 <= self.strength_cv < 0.3):
+            raise ValueError(f"invalid cable spec {self}")
 
     @property
     def breaking_torque(self) -> float:
-        """Elbow torque (N m) at which the cable breaks."""
+        """Elbow torque (N m) at which a median cable breaks."""
         return (self.breaking_tension - self.pretension) * self.pulley_radius
+
+    def draw_strengths(self, rng: np.random.Generator | None) -> np.ndarray:
+        """Breaking tension (N) of the left and right cable, shape (2,); the median without
+        ``rng``."""
+        if rng is None or self.strength_cv == 0.0:
+            return np.full(2, self.breaking_tension)
+        z = np.clip(rng.standard_normal(2), -3.0, 3.0)
+        return self.breaking_tension * (1.0 + self.strength_cv * z)
 
 
 class ElbowCables:
@@ -57,8 +76,10 @@ class ElbowCables:
         self._scale = [float(g) / spec.pulley_radius for g in gear[idx]]
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """New episode: intact cables; their strengths drawn from ``rng`` (CableSpec)."""
         self._physics.model.dof_armature[self._dof] = self._armature0
+        self.strength = self.spec.draw_strengths(rng)
         self.tension = np.full(2, self.spec.pretension)
         self.peak = self.tension.copy()
         self.broken = np.zeros(2, dtype=bool)
@@ -75,7 +96,7 @@ class ElbowCables:
             self.tension[side] = t
             if t > self.peak[side]:
                 self.peak[side] = t
-            if t > spec.breaking_tension:
+            if t > self.strength[side]:
                 snapped += (side,)
                 self._intact[side] = False
                 self.broken[side] = True

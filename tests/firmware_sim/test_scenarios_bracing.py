@@ -16,7 +16,7 @@ from firmware_sim.simulator import FailureKind, Simulator
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 SEEDS = range(8)
-SOFT, STIFF = 8.0, 450.0
+SOFT, STIFF = 20.0, 135.0
 """N m/rad: the ends of the agent's bracing map (ersac_hil/agent/policies.py)."""
 DAMPING_TIME = 0.01
 """s: D = DAMPING_TIME * K, the agent's (and the boards' power-on) damping-to-stiffness ratio."""
@@ -63,7 +63,7 @@ def episode(sim: Simulator, gains: np.ndarray, seed: int, stiffness: float | Non
     return dict(momentum=t.impact_momentum, damaged=t.damaged, acc_sq=acc_sq, energy=energy,
                 hands_down=hands_down, body_down=body_down,
                 peak_tension=max(t.peak_cable_tension_left, t.peak_cable_tension_right),
-                events=events, fallen=t.fallen)
+                events=events, fallen=t.fallen, pitch=t.pitch)
 
 
 def test_momentum_is_drawn_from_the_seed():
@@ -107,10 +107,10 @@ def test_the_robot_falls_onto_its_arms_whatever_the_wheels_do(sim, gains, balanc
 def test_stiffness_trade_off_over_seeds(sim, gains):
     soft = [episode(sim, gains, s, stiffness=SOFT) for s in SEEDS]
     stiff = [episode(sim, gains, s, stiffness=STIFF) for s in SEEDS]
-    print("\nseed momentum | soft: acc_sq E T_peak damaged | stiff: acc_sq E T_peak damaged")
+    print("\nseed momentum | soft: acc_sq E T_peak pitch damaged | stiff: acc_sq E T_peak pitch damaged")
     for s, a, b in zip(SEEDS, soft, stiff):
-        print(f"{s} {a['momentum']:.2f} | {a['acc_sq']:.0f} {a['energy']:.1f} {a['peak_tension']:.0f}"
-              f" {a['damaged']} | {b['acc_sq']:.0f} {b['energy']:.1f} {b['peak_tension']:.0f} {b['damaged']}")
+        print(f"{s} {a['momentum']:.2f} | {a['acc_sq']:.0f} {a['energy']:.1f} {a['peak_tension']:.0f} {a['pitch']:.2f}"
+              f" {a['damaged']} | {b['acc_sq']:.0f} {b['energy']:.1f} {b['peak_tension']:.0f} {b['pitch']:.2f} {b['damaged']}")
     damaged = [r for r in stiff if r["damaged"]]
     intact = [r for r in stiff if not r["damaged"]]
     assert not any(r["damaged"] for r in soft)            # soft arms never break the cable
@@ -118,15 +118,17 @@ def test_stiffness_trade_off_over_seeds(sim, gains):
     assert all(a["peak_tension"] < b["peak_tension"] for a, b in zip(soft, stiff))
     # damage goes with the larger strikes
     assert np.mean([r["momentum"] for r in damaged]) > np.mean([r["momentum"] for r in intact])
-    # soft arms collapse: the hard shell strikes the floor, a far larger acceleration integral
-    # than on intact stiff arms, and holding the deeply deflected arms costs more energy
-    assert all(r["fallen"] and r["body_down"] for r in soft)
-    assert not any(r["body_down"] for r in intact)
-    assert np.mean([r["acc_sq"] for r in soft]) > 3 * np.mean([r["acc_sq"] for r in intact])
-    assert min(r["energy"] for r in soft) > max(r["energy"] for r in intact)
-    # with the agent's weights the soft end costs more on average, damage included
+    # soft arms hold the body, but deep: the arms deflect far, the body sinks lower and holding
+    # the deflected arms costs far more energy than on intact stiff arms; nothing hard touches
+    # the floor (the collapse cliff lies below the agent's range)
+    assert not any(r["body_down"] for r in soft)
+    assert np.mean([r["pitch"] for r in soft]) > np.mean([r["pitch"] for r in intact]) + 0.2
+    assert min(r["energy"] for r in soft) > max(r["energy"] for r in intact) + 10.0
+    # with the agent's weights the soft end costs more than intact stiff arms, and a break costs
+    # more than any intact catch: the arm goes limp and the body lands
     cost = lambda r: 10 * r["damaged"] + 0.1 * r["acc_sq"] + 5 * r["energy"]
-    assert np.mean([cost(r) for r in soft]) > 2 * np.mean([cost(r) for r in stiff])
+    assert np.mean([cost(r) for r in soft]) > np.mean([cost(r) for r in intact]) + 50.0
+    assert min(cost(r) for r in damaged) > max(cost(r) for r in intact) + 10.0
     # each break is reported once, by the arm board of its side
     for r in damaged:
         breaks = [e for e in r["events"] if e.kind == FailureKind.CABLE_BROKEN]

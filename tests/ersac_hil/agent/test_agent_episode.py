@@ -51,9 +51,10 @@ def test_bracing_stiffness_changes_the_cost_and_stiff_arms_break_cables(rig):
         assert all(set(r.cost_terms) == {"damage", "body_acc_sq", "arm_power"} for r in rs)
     soft = [r.total_cost for r in results[0.0]]
     stiff = [r.total_cost for r in results[1.0]]
-    # soft arms collapse (the body strikes the floor): costlier than stiff arms, cable or not
+    # soft arms hold the body deep (pitch beyond the bench's 0.8 rad fall mark) on deflected,
+    # costly arms: costlier than stiff arms, cable or not
     assert all(r.failed("fallen") for r in results[0.0])
-    assert np.mean(soft) > 1.5 * np.mean(stiff)
+    assert np.mean(soft) > np.mean(stiff) + 20.0
     assert any(r.cost_terms["damage"] == 1.0 and r.failed("hardware_damage") for r in results[1.0])
     assert not any(r.cost_terms["damage"] for r in results[0.0])
     damaged = [r for r in results[1.0] if r.cost_terms["damage"]]

@@ -20,8 +20,8 @@ SENSIBLE = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
 
 def test_bracing_stiffness_is_log_linear_between_the_ends():
     p = BracingPolicy()
-    assert p.stiffness(0.0) == pytest.approx(p.k_min) and p.k_min == pytest.approx(8.0)
-    assert p.stiffness(1.0) == pytest.approx(p.k_max) and p.k_max == pytest.approx(450.0)
+    assert p.stiffness(0.0) == pytest.approx(p.k_min) and p.k_min == pytest.approx(20.0)
+    assert p.stiffness(1.0) == pytest.approx(p.k_max) and p.k_max == pytest.approx(135.0)
     assert p.stiffness(0.5) == pytest.approx(math.sqrt(p.k_min * p.k_max))
     with pytest.raises(InvalidField):
         p.stiffness(1.01)
@@ -48,7 +48,7 @@ def test_bracing_map_refuses_impedances_the_boards_refuse():
     with pytest.raises(ValueError):
         BracingPolicy(k_max=UBOT.stiffness_max + 1)
     with pytest.raises(ValueError):
-        BracingPolicy(damping_time=UBOT.damping_max / 450.0 * 1.01)
+        BracingPolicy(damping_time=UBOT.damping_max / BracingPolicy().k_max * 1.01)
 
 
 def test_lifting_spline_knots_times_and_tangents():
