@@ -23,15 +23,18 @@ optional ``[weights]`` table::
 """
 from __future__ import annotations
 
-import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields, replace
-from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from protocol.zenoh import KAPPA_MAX, KAPPA_MIN, KeySpace, PayloadError, get_task
+import msgspec
+from msgspec import Meta
+from msgspec.structs import force_setattr
+
+from protocol.zenoh import KAPPA_MAX, KAPPA_MIN, InvalidField, KeySpace, get_task
 from protocol.zenoh.codec import ID_PATTERN
+from protocol.zenoh.fields import Finite, Name, NonNegative, Positive, Record, converting
+from protocol.zenoh.tasks import TaskName
 
 __all__ = [
     "ConfigError",
@@ -77,39 +80,15 @@ def default_sigma(task: str) -> tuple[float, ...]:
     return tuple(SIGMA_FRACTION * (hi - lo) for lo, hi in zip(spec.lower, spec.upper))
 
 
-def _finite(value: Any, name: str, lo: float | None = None, hi: float | None = None,
-            open_lo: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{name} must be a number, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise ConfigError(f"{name} must be finite, got {value!r}")
-    if lo is not None and (out <= lo if open_lo else out < lo):
-        raise ConfigError(f"{name} = {out!r} must be {'>' if open_lo else '>='} {lo!r}")
-    if hi is not None and out > hi:
-        raise ConfigError(f"{name} = {out!r} must be <= {hi!r}")
-    return out
+Kappa = Annotated[float, Meta(ge=KAPPA_MIN, le=KAPPA_MAX)]
+Seconds = Annotated[float, Meta(gt=0.0, le=86_400.0)]
 
 
-def _int(value: Any, name: str, lo: int, hi: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"{name} must be an integer, got {value!r}")
-    if value < lo or (hi is not None and value > hi):
-        raise ConfigError(f"{name} = {value} must be in [{lo}, {hi if hi is not None else 'inf'}]")
-    return int(value)
-
-
-def _vector(value: Any, name: str, dim: int) -> tuple[float, ...]:
-    if not isinstance(value, (list, tuple)):
-        raise ConfigError(f"{name} must be a list of {dim} numbers, got {value!r}")
-    if len(value) != dim:
-        raise ConfigError(f"{name} needs {dim} values for this task, got {len(value)}")
-    return tuple(_finite(v, f"{name}[{i}]") for i, v in enumerate(value))
-
-
-@dataclass(frozen=True)
-class DaemonConfig:
+class DaemonConfig(Record, frozen=True, kw_only=True):
     """Everything the learner daemon needs. Shapes: ``dim`` = the task's parameter count.
+
+    Field types carry their constraints (msgspec); a config that exists is valid, so the
+    service never re-validates. Invalid values raise :class:`ConfigError` naming the field.
 
     Attributes:
         robot: robot name (one Zenoh key chunk); keys live under ``<prefix>/<robot>``.
@@ -143,89 +122,65 @@ class DaemonConfig:
     """
 
     robot: str
-    task: str = "bracing"
-    kappa: float = 0.0
-    episodes: int | None = None
-    seed: int | None = None
-    theta0: tuple[float, ...] | None = None
-    sigma: tuple[float, ...] | None = None
-    eta: float = 0.1
-    epsilon: float = 0.25
-    lr_range: tuple[float, float] | None = None
-    weights: Mapping[str, float] | None = None
+    task: TaskName = "bracing"
+    kappa: Kappa = 0.0
+    episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None
+    seed: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
+    theta0: tuple[Finite, ...] | None = None
+    sigma: tuple[Positive, ...] | None = None
+    eta: Positive = 0.1
+    epsilon: Positive = 0.25
+    lr_range: tuple[Positive, Positive] | None = None
+    weights: dict[Name, NonNegative] | None = None
     prefix: str = "ersac"
-    zenoh: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    db: Path = Path("ersac.db")
-    episode_timeout_s: float = 60.0
-    max_attempts: int = 5
-    backoff_s: tuple[float, float] = (0.5, 10.0)
-    agent_wait_s: float | None = None
+    zenoh: Annotated[tuple[str, ...], Meta(min_length=1)] = ("tcp/127.0.0.1:7447",)
+    db: str = "ersac.db"
+    episode_timeout_s: Seconds = 60.0
+    max_attempts: Annotated[int, Meta(ge=1, le=1000)] = 5
+    backoff_s: tuple[Positive, Positive] = (0.5, 10.0)
+    agent_wait_s: Positive | None = None
     resume: str = RESUME_LATEST
     linger: bool = False
     explicit: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        try:
+            super().__post_init__()
+        except InvalidField as exc:
+            if converting():
+                raise
+            raise ConfigError(str(exc)) from None
+
+    def _check(self) -> None:
+        set_ = lambda k, v: force_setattr(self, k, v)  # noqa: E731
         try:
             KeySpace(self.robot, self.prefix)
-            spec = get_task(self.task)
-        except (PayloadError, ValueError) as exc:
-            raise ConfigError(str(exc)) from None
-        set_("kappa", _finite(self.kappa, "kappa", KAPPA_MIN, KAPPA_MAX))
-        if self.episodes is not None:
-            set_("episodes", _int(self.episodes, "episodes", 1, 1_000_000))
-        if self.seed is not None:
-            set_("seed", _int(self.seed, "seed", 0, 2**63 - 1))
-        theta0 = default_theta0(self.task) if self.theta0 is None else self.theta0
-        theta0 = _vector(theta0, "theta0", spec.dim)
-        try:
-            spec.check_theta(theta0, "theta0")
-        except PayloadError as exc:
-            raise ConfigError(str(exc)) from None
-        set_("theta0", theta0)
-        sigma = _vector(default_sigma(self.task) if self.sigma is None else self.sigma, "sigma", spec.dim)
-        if any(s <= 0 for s in sigma):
-            raise ConfigError(f"sigma entries must be > 0, got {sigma}")
+        except ValueError as exc:
+            raise InvalidField("robot", str(exc)) from None
+        spec = get_task(self.task)
+        set_("theta0", spec.check_theta(default_theta0(self.task) if self.theta0 is None else self.theta0, "theta0"))
+        sigma = default_sigma(self.task) if self.sigma is None else self.sigma
+        if len(sigma) != spec.dim:
+            raise InvalidField("sigma", f"needs {spec.dim} values for this task, got {len(sigma)}")
         set_("sigma", sigma)
-        set_("eta", _finite(self.eta, "eta", 0.0, open_lo=True))
-        set_("epsilon", _finite(self.epsilon, "epsilon", 0.0, open_lo=True))
-        lr = _vector(DEFAULT_LR_RANGE[self.task] if self.lr_range is None else self.lr_range, "lr_range", 2)
-        if not 0 < lr[0] <= lr[1]:
-            raise ConfigError(f"lr_range must satisfy 0 < lo <= hi, got {lr}")
+        lr = DEFAULT_LR_RANGE[self.task] if self.lr_range is None else self.lr_range
+        if not lr[0] <= lr[1]:
+            raise InvalidField("lr_range", f"must satisfy 0 < lo <= hi, got {lr}")
         set_("lr_range", lr)
         weights = dict(spec.default_weights)
         if self.weights is not None:
-            if not isinstance(self.weights, Mapping):
-                raise ConfigError(f"weights must be a table of name = value, got {self.weights!r}")
-            for name, value in self.weights.items():
-                if name not in spec.term_names:
-                    raise ConfigError(
-                        f"weight {name!r} is not a cost term of {self.task!r}: {list(spec.term_names)}")
-                weights[name] = _finite(value, f"weights.{name}", 0.0)
+            spec.check_names(self.weights, "weights", complete=False)
+            weights.update(self.weights)
         set_("weights", {k: weights[k] for k in spec.term_names})
-        if isinstance(self.zenoh, str) or not isinstance(self.zenoh, (list, tuple)) or not self.zenoh:
-            raise ConfigError(f"zenoh must be a non-empty list of endpoints, got {self.zenoh!r}")
         from ersac_hil.zenoh_session import EndpointError, check_endpoint
         try:
             set_("zenoh", tuple(check_endpoint(e) for e in self.zenoh))
         except EndpointError as exc:
-            raise ConfigError(str(exc)) from None
-        set_("db", Path(self.db))
-        set_("episode_timeout_s", _finite(self.episode_timeout_s, "episode_timeout_s", 0.0, 86_400.0, open_lo=True))
-        set_("max_attempts", _int(self.max_attempts, "max_attempts", 1, 1000))
-        backoff = _vector(self.backoff_s, "backoff_s", 2)
-        if not 0 < backoff[0] <= backoff[1]:
-            raise ConfigError(f"backoff_s must satisfy 0 < initial <= max, got {backoff}")
-        set_("backoff_s", backoff)
-        if self.agent_wait_s is not None:
-            set_("agent_wait_s", _finite(self.agent_wait_s, "agent_wait_s", 0.0, open_lo=True))
-        if not isinstance(self.resume, str) or not (
-            self.resume in (RESUME_LATEST, RESUME_NEW) or ID_PATTERN.fullmatch(self.resume)
-        ):
-            raise ConfigError(f"resume must be 'latest', 'new' or a run id, got {self.resume!r}")
-        if not isinstance(self.linger, bool):
-            raise ConfigError(f"linger must be true or false, got {self.linger!r}")
-        set_("explicit", frozenset(self.explicit))
+            raise InvalidField("zenoh", str(exc)) from None
+        if not self.backoff_s[0] <= self.backoff_s[1]:
+            raise InvalidField("backoff_s", f"must satisfy 0 < initial <= max, got {self.backoff_s}")
+        if not (self.resume in (RESUME_LATEST, RESUME_NEW) or ID_PATTERN.fullmatch(self.resume)):
+            raise InvalidField("resume", f"must be 'latest', 'new' or a run id, got {self.resume!r}")
 
     @property
     def episodes_or_default(self) -> int:
@@ -251,18 +206,17 @@ class DaemonConfig:
         for key in ("theta0", "sigma", "lr_range"):
             if key in changes:
                 changes[key] = tuple(changes[key])
-        return replace(self, **changes)
+        return type(self)(**{**msgspec.structs.asdict(self), **changes})
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
-        out = asdict(self)
-        out["db"] = str(self.db)
+        out = msgspec.structs.asdict(self)
         out["weights"] = dict(self.weights or {})
         out["explicit"] = sorted(self.explicit)
         return out
 
 
-_FIELD_NAMES = {f.name for f in fields(DaemonConfig)}
+_FIELD_NAMES = set(DaemonConfig.__struct_fields__)
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
@@ -313,6 +267,6 @@ def merge(file_values: Mapping[str, Any], flag_values: Mapping[str, Any]) -> Dae
         raise ConfigError("the robot name is required (--robot NAME or robot = \"...\" in the config file)")
     try:
         return DaemonConfig(**values)
-    except TypeError as exc:
+    except TypeError as exc:  # an unknown keyword
         raise ConfigError(str(exc)) from None
 

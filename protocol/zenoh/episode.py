@@ -2,23 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from typing import Annotated, ClassVar, Literal
 
-from .codec import (
-    ID_PATTERN,
-    as_bool,
-    as_choice,
-    as_float,
-    as_float_map,
-    as_int,
-    as_mapping,
-    as_str,
-)
+from msgspec import Meta
+
 from .errors import InvalidField
+from .fields import Count, Finite, Id, Name, NonNegative, Text, anchored
 from .keys import CHUNK_PATTERN
-from .messages import Message, set_field
-from .tasks import TaskSpec, get_task
+from .messages import Message
+from .tasks import TaskName, TaskSpec, get_task
 
 __all__ = [
     "SEED_MAX",
@@ -47,28 +39,34 @@ FAILURE_FLAGS: tuple[str, ...] = ("hardware_damage", "over_current", "fallen", "
 MAX_DURATION_S = 86_400.0
 
 
-@dataclass(frozen=True)
-class EpisodeRequest(Message):
+Seed = Annotated[int, Meta(ge=0, le=SEED_MAX)]
+Duration = Annotated[float, Meta(ge=0.0, le=MAX_DURATION_S)]
+Failures = Annotated[
+    dict[Literal[FAILURE_FLAGS], bool],  # type: ignore[valid-type]
+    Meta(extra_json_schema={"propertyNames": {"enum": list(FAILURE_FLAGS)}}),
+]
+Robot = Annotated[str, Meta(pattern=anchored(CHUNK_PATTERN))]
+
+
+class EpisodeRequest(Message, frozen=True):
     """Query payload of ``episode/run``: run one episode of ``task`` at ``theta``.
 
     Attributes:
-        episode_id: unique id chosen by the learner (matches :data:`ID_PATTERN`).
+        episode_id: unique id chosen by the learner (matches ``ID_PATTERN``).
         task: a key of ``TASKS``.
         theta: policy parameters, shape ``(TASKS[task].dim,)``, inside the task bounds.
         seed: scenario seed, ``0 <= seed <= 2**32 - 1`` (impact momentum, initial state...).
     """
 
-    TYPE = "episode_request"
+    TYPE: ClassVar[str] = "episode_request"
 
-    episode_id: str
-    task: str
-    theta: tuple[float, ...]
-    seed: int
+    episode_id: Id
+    task: TaskName
+    theta: tuple[Finite, ...]
+    seed: Seed
 
-    def __post_init__(self) -> None:
-        as_str(self.episode_id, "episode_id", pattern=ID_PATTERN)
-        set_field(self, "theta", get_task(self.task).check_theta(self.theta))
-        set_field(self, "seed", as_int(self.seed, "seed", lo=0, hi=SEED_MAX))
+    def _check(self) -> None:
+        self.spec.check_theta(self.theta)
 
     @property
     def spec(self) -> TaskSpec:
@@ -76,8 +74,7 @@ class EpisodeRequest(Message):
         return get_task(self.task)
 
 
-@dataclass(frozen=True)
-class EpisodeResult(Message):
+class EpisodeResult(Message, frozen=True):
     """Reply payload of ``episode/run`` (errors before the episode starts use ``ErrorReply``).
 
     Attributes:
@@ -98,51 +95,27 @@ class EpisodeResult(Message):
         detail: free text for humans (<= 4096 characters).
     """
 
-    TYPE = "episode_result"
+    TYPE: ClassVar[str] = "episode_result"
 
-    episode_id: str
-    task: str
-    status: str
-    cost_terms: Mapping[str, float]
-    total_cost: float | None
-    failures: Mapping[str, bool] = field(default_factory=dict)
-    duration_s: float = 0.0
-    wall_s: float = 0.0
-    telemetry: Mapping[str, float] = field(default_factory=dict)
-    fault_counts: Mapping[str, int] = field(default_factory=dict)
-    detail: str = ""
+    episode_id: Id
+    task: TaskName
+    status: Literal[STATUSES]  # type: ignore[valid-type]
+    cost_terms: dict[Name, Finite]
+    total_cost: Finite | None
+    failures: Failures = {}
+    duration_s: Duration = 0.0
+    wall_s: Duration = 0.0
+    telemetry: dict[Name, Finite] = {}
+    fault_counts: dict[Name, Count] = {}
+    detail: Text = ""
 
-    def __post_init__(self) -> None:
-        as_str(self.episode_id, "episode_id", pattern=ID_PATTERN)
-        spec = get_task(self.task)
-        as_choice(self.status, "status", STATUSES)
+    def _check(self) -> None:
         ok = self.status == "ok"
-        set_field(
-            self,
-            "cost_terms",
-            as_float_map(
-                self.cost_terms, "cost_terms",
-                names=spec.term_names, required=spec.term_names if ok else (),
-            ),
-        )
-        if ok:
-            if self.total_cost is None:
-                raise InvalidField("total_cost", "required when status is 'ok'")
-            set_field(self, "total_cost", as_float(self.total_cost, "total_cost"))
-        elif self.total_cost is not None:
+        get_task(self.task).check_names(self.cost_terms, "cost_terms", complete=ok)
+        if ok and self.total_cost is None:
+            raise InvalidField("total_cost", "required when status is 'ok'")
+        if not ok and self.total_cost is not None:
             raise InvalidField("total_cost", f"must be null when status is {self.status!r}")
-        set_field(
-            self, "failures", as_mapping(self.failures, "failures", as_bool, names=FAILURE_FLAGS)
-        )
-        set_field(self, "duration_s", as_float(self.duration_s, "duration_s", lo=0.0, hi=MAX_DURATION_S))
-        set_field(self, "wall_s", as_float(self.wall_s, "wall_s", lo=0.0, hi=MAX_DURATION_S))
-        set_field(self, "telemetry", as_float_map(self.telemetry, "telemetry"))
-        set_field(
-            self,
-            "fault_counts",
-            as_mapping(self.fault_counts, "fault_counts", lambda v, f: as_int(v, f, lo=0, hi=2**53)),
-        )
-        as_str(self.detail, "detail", max_len=4096)
 
     @property
     def ok(self) -> bool:
@@ -154,8 +127,7 @@ class EpisodeResult(Message):
         return bool(self.failures.get(flag, False))
 
 
-@dataclass(frozen=True)
-class EpisodeDone(Message):
+class EpisodeDone(Message, frozen=True):
     """Publication on ``episode/done``: one finished episode with its request.
 
     Attributes:
@@ -165,21 +137,14 @@ class EpisodeDone(Message):
         result: its result; ``episode_id`` and ``task`` must match the request's.
     """
 
-    TYPE = "episode_done"
-    NESTED = {"request": EpisodeRequest, "result": EpisodeResult}
+    TYPE: ClassVar[str] = "episode_done"
 
-    robot: str
-    stamp_s: float
+    robot: Robot
+    stamp_s: NonNegative
     request: EpisodeRequest
     result: EpisodeResult
 
-    def __post_init__(self) -> None:
-        as_str(self.robot, "robot", pattern=CHUNK_PATTERN)
-        set_field(self, "stamp_s", as_float(self.stamp_s, "stamp_s", lo=0.0))
-        if not isinstance(self.request, EpisodeRequest):
-            raise InvalidField("request", "expected an EpisodeRequest")
-        if not isinstance(self.result, EpisodeResult):
-            raise InvalidField("result", "expected an EpisodeResult")
+    def _check(self) -> None:
         if self.result.episode_id != self.request.episode_id:
             raise InvalidField("result.episode_id", "does not match request.episode_id")
         if self.result.task != self.request.task:

@@ -9,19 +9,11 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
+
+from msgspec import Meta
 
 from .codec import (
-    ID_PATTERN,
-    as_bool,
-    as_choice,
-    as_float,
-    as_float_map,
-    as_float_tuple,
-    as_int,
-    as_str,
     format_float,
     format_parameters,
     parse_bool,
@@ -31,8 +23,9 @@ from .codec import (
 )
 from .episode import EpisodeRequest, EpisodeResult
 from .errors import InvalidField
-from .messages import Message, field_prefix, set_field
-from .tasks import get_task
+from .fields import Count, Finite, Id, Name, NonNegative, Positive, Record
+from .messages import Message
+from .tasks import TaskName, get_task
 
 __all__ = [
     "KAPPA_MIN",
@@ -60,9 +53,10 @@ MAX_CRITIC_POINTS = 3_000
 #: Points per dimension of a critic grid query.
 GRID_MIN, GRID_MAX = 2, 1001
 
-
-def _kappa(value: Any, name: str = "kappa") -> float:
-    return as_float(value, name, lo=KAPPA_MIN, hi=KAPPA_MAX)
+Kappa = Annotated[float, Meta(ge=KAPPA_MIN, le=KAPPA_MAX)]
+#: A point in parameter space (the task's bounds are checked by each record).
+Vector = Annotated[tuple[Finite, ...], Meta(min_length=1, max_length=64)]
+Weights = Annotated[dict[Name, NonNegative], Meta(min_length=1)]
 
 
 def _check_objective(j: float, r: float, f: float, kappa: float, path: str) -> None:
@@ -71,8 +65,7 @@ def _check_objective(j: float, r: float, f: float, kappa: float, path: str) -> N
         raise InvalidField(path, f"F = {f!r} but J + kappa * r = {expected!r}")
 
 
-@dataclass(frozen=True)
-class LearnerState(Message):
+class LearnerState(Message, frozen=True):
     """Reply of ``learner/state``.
 
     Attributes:
@@ -86,33 +79,26 @@ class LearnerState(Message):
         episode_count: episodes recorded in this run.
     """
 
-    TYPE = "learner_state"
+    TYPE: ClassVar[str] = "learner_state"
 
-    run_id: str
-    task: str
-    status: str
-    theta: tuple[float, ...]
-    sigma: tuple[float, ...]
-    kappa: float
-    weights: Mapping[str, float]
-    episode_count: int
+    run_id: Id
+    task: TaskName
+    status: Literal[LEARNER_STATUSES]  # type: ignore[valid-type]
+    theta: Vector
+    sigma: tuple[Positive, ...]
+    kappa: Kappa
+    weights: Weights
+    episode_count: Count
 
-    def __post_init__(self) -> None:
-        as_str(self.run_id, "run_id", pattern=ID_PATTERN)
+    def _check(self) -> None:
         spec = get_task(self.task)
-        as_choice(self.status, "status", LEARNER_STATUSES)
-        set_field(self, "theta", spec.check_theta(self.theta))
-        sigma = as_float_tuple(self.sigma, "sigma", length=spec.dim, lo=0.0)
-        if any(s <= 0.0 for s in sigma):
-            raise InvalidField("sigma", "every entry must be > 0")
-        set_field(self, "sigma", sigma)
-        set_field(self, "kappa", _kappa(self.kappa))
-        set_field(self, "weights", spec.check_weights(self.weights))
-        set_field(self, "episode_count", as_int(self.episode_count, "episode_count", lo=0))
+        spec.check_theta(self.theta)
+        if len(self.sigma) != spec.dim:
+            raise InvalidField("sigma", f"expected {spec.dim} values, got {len(self.sigma)}")
+        spec.check_names(self.weights, "weights", complete=True)
 
 
-@dataclass(frozen=True)
-class CriticQuery:
+class CriticQuery(Record, frozen=True):
     """Selector parameters of ``learner/critic`` (exactly one of ``thetas`` or ``grid``).
 
     Text form: ``theta=0.1,0.2|0.3,0.4`` (points separated by ``|``, coordinates by ``,``),
@@ -125,27 +111,17 @@ class CriticQuery:
         kappa: kappa for F, or ``None`` for the learner's current kappa.
     """
 
-    thetas: tuple[tuple[float, ...], ...] = ()
-    grid: int | None = None
-    kappa: float | None = None
+    thetas: Annotated[tuple[Vector, ...], Meta(max_length=MAX_CRITIC_POINTS)] = ()
+    grid: Annotated[int, Meta(ge=GRID_MIN, le=GRID_MAX)] | None = None
+    kappa: Kappa | None = None
 
-    PARAMETERS = ("theta", "grid", "kappa")
+    PARAMETERS: ClassVar[tuple[str, ...]] = ("theta", "grid", "kappa")
 
-    def __post_init__(self) -> None:
-        if not isinstance(self.thetas, (tuple, list)):
-            raise InvalidField("theta", f"expected a sequence of points, got {type(self.thetas).__name__}")
-        if len(self.thetas) > MAX_CRITIC_POINTS:
-            raise InvalidField("theta", f"more than {MAX_CRITIC_POINTS} points")
-        points = tuple(as_float_tuple(p, f"theta[{i}]") for i, p in enumerate(self.thetas))
-        if len({len(p) for p in points}) > 1:
+    def _check(self) -> None:
+        if len({len(p) for p in self.thetas}) > 1:
             raise InvalidField("theta", "points have different dimensions")
-        set_field(self, "thetas", points)
-        if self.grid is not None:
-            set_field(self, "grid", as_int(self.grid, "grid", lo=GRID_MIN, hi=GRID_MAX))
-        if (self.grid is None) == (not points):
+        if (self.grid is None) == (not self.thetas):
             raise InvalidField("theta", "give exactly one of 'theta' or 'grid'")
-        if self.kappa is not None:
-            set_field(self, "kappa", _kappa(self.kappa))
 
     @classmethod
     def from_parameters(cls, params: Any) -> Self:
@@ -196,26 +172,18 @@ class CriticQuery:
         return tuple(itertools.product(*axes))
 
 
-@dataclass(frozen=True)
-class CriticPoint(Message):
+class CriticPoint(Message, frozen=True):
     """One critic prediction: ``J`` = J~(theta), ``r`` = r~(theta) >= 0, ``F`` = J + kappa r."""
 
-    TYPE = "critic_point"
+    TYPE: ClassVar[str] = "critic_point"
 
-    theta: tuple[float, ...]
-    J: float
-    r: float
-    F: float
-
-    def __post_init__(self) -> None:
-        set_field(self, "theta", as_float_tuple(self.theta, "theta"))
-        set_field(self, "J", as_float(self.J, "J"))
-        set_field(self, "r", as_float(self.r, "r", lo=0.0))
-        set_field(self, "F", as_float(self.F, "F"))
+    theta: Vector
+    J: Finite
+    r: NonNegative
+    F: Finite
 
 
-@dataclass(frozen=True)
-class CriticReply(Message):
+class CriticReply(Message, frozen=True):
     """Reply of ``learner/critic``.
 
     Attributes:
@@ -224,43 +192,28 @@ class CriticReply(Message):
         points: 1..MAX_CRITIC_POINTS predictions, with ``F == J + kappa * r``.
     """
 
-    TYPE = "critic_reply"
-    NESTED = {"points": (CriticPoint,)}
+    TYPE: ClassVar[str] = "critic_reply"
 
-    task: str
-    kappa: float
-    points: tuple[CriticPoint, ...]
+    task: TaskName
+    kappa: Kappa
+    points: Annotated[tuple[CriticPoint, ...], Meta(min_length=1, max_length=MAX_CRITIC_POINTS)]
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         spec = get_task(self.task)
-        set_field(self, "kappa", _kappa(self.kappa))
-        if not isinstance(self.points, (tuple, list)):
-            raise InvalidField("points", f"expected a list, got {type(self.points).__name__}")
-        if not 1 <= len(self.points) <= MAX_CRITIC_POINTS:
-            raise InvalidField("points", f"expected 1..{MAX_CRITIC_POINTS} points")
         for i, point in enumerate(self.points):
-            if not isinstance(point, CriticPoint):
-                raise InvalidField(f"points[{i}]", "expected a CriticPoint")
-            with field_prefix(f"points[{i}]"):
-                spec.check_theta(point.theta)
-                _check_objective(point.J, point.r, point.F, self.kappa, "F")
-        set_field(self, "points", tuple(self.points))
+            spec.check_theta(point.theta, f"points[{i}].theta")
+            _check_objective(point.J, point.r, point.F, self.kappa, f"points[{i}].F")
 
 
-@dataclass(frozen=True)
-class KappaCommand(Message):
+class KappaCommand(Message, frozen=True):
     """Put on ``learner/kappa``: new risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``."""
 
-    TYPE = "kappa_command"
+    TYPE: ClassVar[str] = "kappa_command"
 
-    kappa: float
-
-    def __post_init__(self) -> None:
-        set_field(self, "kappa", _kappa(self.kappa))
+    kappa: Kappa
 
 
-@dataclass(frozen=True)
-class WeightsCommand(Message):
+class WeightsCommand(Message, frozen=True):
     """Put on ``learner/weights``: new cost-term weights (a risk context).
 
     ``weights`` is a non-empty name -> finite, non-negative float mapping; names missing keep
@@ -268,12 +221,9 @@ class WeightsCommand(Message):
     learner (``TaskSpec.total_cost``), which refuses the whole command if not (``learner/error``).
     """
 
-    TYPE = "weights_command"
+    TYPE: ClassVar[str] = "weights_command"
 
-    weights: Mapping[str, float]
-
-    def __post_init__(self) -> None:
-        set_field(self, "weights", as_float_map(self.weights, "weights", lo=0.0, allow_empty=False))
+    weights: Weights
 
 
 def _parse_weights(text: str) -> dict[str, float]:
@@ -288,8 +238,7 @@ def _parse_weights(text: str) -> dict[str, float]:
     return out
 
 
-@dataclass(frozen=True)
-class SelectQuery:
+class SelectQuery(Record, frozen=True):
     """Selector parameters of ``learner/select``: offline policy selection.
 
     Text form: ``kappa=0.5;weights=damage:10,arm_power:2.5;adopt=true``; ``kappa`` is required,
@@ -297,19 +246,11 @@ class SelectQuery:
     selected theta the learner's policy mean) are optional.
     """
 
-    kappa: float
-    weights: Mapping[str, float] | None = None
+    kappa: Kappa
+    weights: Weights | None = None
     adopt: bool = False
 
-    PARAMETERS = ("kappa", "weights", "adopt")
-
-    def __post_init__(self) -> None:
-        set_field(self, "kappa", _kappa(self.kappa))
-        if self.weights is not None:
-            set_field(
-                self, "weights", as_float_map(self.weights, "weights", lo=0.0, allow_empty=False)
-            )
-        as_bool(self.adopt, "adopt")
+    PARAMETERS: ClassVar[tuple[str, ...]] = ("kappa", "weights", "adopt")
 
     @classmethod
     def from_parameters(cls, params: Any) -> Self:
@@ -332,8 +273,7 @@ class SelectQuery:
         return format_parameters(out)
 
 
-@dataclass(frozen=True)
-class SelectReply(Message):
+class SelectReply(Message, frozen=True):
     """Reply of ``learner/select``: the minimiser of F~ = J~ + kappa r~ within the data.
 
     Attributes:
@@ -345,31 +285,25 @@ class SelectReply(Message):
         adopted: whether the learner made theta its policy mean.
     """
 
-    TYPE = "select_reply"
+    TYPE: ClassVar[str] = "select_reply"
 
-    task: str
-    theta: tuple[float, ...]
-    J: float
-    r: float
-    F: float
-    kappa: float
-    weights: Mapping[str, float]
+    task: TaskName
+    theta: Vector
+    J: Finite
+    r: NonNegative
+    F: Finite
+    kappa: Kappa
+    weights: Weights
     adopted: bool
 
-    def __post_init__(self) -> None:
+    def _check(self) -> None:
         spec = get_task(self.task)
-        set_field(self, "theta", spec.check_theta(self.theta))
-        set_field(self, "J", as_float(self.J, "J"))
-        set_field(self, "r", as_float(self.r, "r", lo=0.0))
-        set_field(self, "F", as_float(self.F, "F"))
-        set_field(self, "kappa", _kappa(self.kappa))
+        spec.check_theta(self.theta)
         _check_objective(self.J, self.r, self.F, self.kappa, "F")
-        set_field(self, "weights", spec.check_weights(self.weights))
-        as_bool(self.adopted, "adopted")
+        spec.check_names(self.weights, "weights", complete=True)
 
 
-@dataclass(frozen=True)
-class LearnerEpisode(Message):
+class LearnerEpisode(Message, frozen=True):
     """Publication on ``learner/episodes``: one episode as the learner recorded it.
 
     Attributes:
@@ -383,34 +317,25 @@ class LearnerEpisode(Message):
         stamp_s: UNIX time (s) of recording.
     """
 
-    TYPE = "learner_episode"
-    NESTED = {"request": EpisodeRequest, "result": EpisodeResult}
+    TYPE: ClassVar[str] = "learner_episode"
 
-    run_id: str
-    index: int
-    base_theta: tuple[float, ...]
-    z: tuple[float, ...]
+    run_id: Id
+    index: Count
+    base_theta: Vector
+    z: Vector
     request: EpisodeRequest
     result: EpisodeResult
-    cost: float | None
-    stamp_s: float
+    cost: Finite | None
+    stamp_s: NonNegative
 
-    def __post_init__(self) -> None:
-        as_str(self.run_id, "run_id", pattern=ID_PATTERN)
-        set_field(self, "index", as_int(self.index, "index", lo=0))
-        if not isinstance(self.request, EpisodeRequest):
-            raise InvalidField("request", "expected an EpisodeRequest")
-        if not isinstance(self.result, EpisodeResult):
-            raise InvalidField("result", "expected an EpisodeResult")
+    def _check(self) -> None:
         spec = self.request.spec
-        set_field(self, "base_theta", spec.check_theta(self.base_theta, "base_theta"))
-        set_field(self, "z", as_float_tuple(self.z, "z", length=spec.dim))
+        spec.check_theta(self.base_theta, "base_theta")
+        if len(self.z) != spec.dim:
+            raise InvalidField("z", f"expected {spec.dim} values, got {len(self.z)}")
         if (self.result.episode_id, self.result.task) != (self.request.episode_id, self.request.task):
             raise InvalidField("result.episode_id", "does not match the request")
-        if self.result.ok:
-            if self.cost is None:
-                raise InvalidField("cost", "required when the result is 'ok'")
-            set_field(self, "cost", as_float(self.cost, "cost"))
-        elif self.cost is not None:
+        if self.result.ok and self.cost is None:
+            raise InvalidField("cost", "required when the result is 'ok'")
+        if not self.result.ok and self.cost is not None:
             raise InvalidField("cost", "must be null when the result is not 'ok'")
-        set_field(self, "stamp_s", as_float(self.stamp_s, "stamp_s", lo=0.0))

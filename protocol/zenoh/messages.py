@@ -11,20 +11,22 @@ field is optional)::
 * ``type`` - the message type (``Message.TYPE``); decoding with the wrong class raises
   :class:`InvalidField` on ``"type"``.
 
-Messages are frozen dataclasses. Their ``__post_init__`` validates and normalises every field,
-so a message that exists is valid whether it was built in code or decoded from the wire.
+Messages are frozen msgspec Structs (``protocol.zenoh.fields.Record``): field types carry their
+constraints, unknown fields are refused, and a message built in code passes the same checks
+as one decoded from the wire.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from contextlib import contextmanager
-from dataclasses import dataclass, fields
-from typing import Any, ClassVar, Iterator, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
+
+from msgspec import Meta
 
 from . import codec
-from .codec import FrozenMap, as_choice, as_str
+from .codec import FrozenMap
 from .errors import InvalidField, UnsupportedVersion
+from .fields import Record, field_types, unwrap, convert
 
 __all__ = [
     "VERSION",
@@ -44,25 +46,6 @@ SUPPORTED_VERSIONS: tuple[int, ...] = (1,)
 _REGISTRY: dict[str, type[Message]] = {}
 
 
-@contextmanager
-def field_prefix(prefix: str) -> Iterator[None]:
-    """Re-raise :class:`InvalidField` from the block with ``prefix`` prepended to its path."""
-    try:
-        yield
-    except InvalidField as exc:
-        raise exc.prefixed(prefix) from None
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, Message):
-        return value.to_obj()
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (tuple, list)):
-        return [_plain(v) for v in value]
-    return value
-
-
 def check_envelope(obj: Mapping[str, Any], expected_type: str | None = None) -> str:
     """Check ``v`` and ``type`` of a decoded object; return its type name."""
     if "v" not in obj:
@@ -75,23 +58,37 @@ def check_envelope(obj: Mapping[str, Any], expected_type: str | None = None) -> 
     if "type" not in obj:
         raise InvalidField("type", "missing message type")
     kind = obj["type"]
-    if expected_type is not None:
-        if kind != expected_type:
-            raise InvalidField("type", f"expected {expected_type!r}, got {str(kind)[:80]!r}")
-    else:
-        as_choice(kind, "type", _REGISTRY)
+    if expected_type is not None and kind != expected_type:
+        raise InvalidField("type", f"expected {expected_type!r}, got {str(kind)[:80]!r}")
+    if expected_type is None and (not isinstance(kind, str) or kind not in _REGISTRY):
+        raise InvalidField("type", f"unknown message type {str(kind)[:80]!r}; expected one of {list(_REGISTRY)}")
     return kind
 
 
-class Message:
-    """Base of every payload dataclass.
+def _require_all(obj: Any, cls: type, path: str) -> None:
+    """Every field of ``cls`` (and of nested records) is present: on the wire no field is
+    optional, even those with a default in code."""
+    if not isinstance(obj, Mapping):
+        return  # msgspec names the wrong kind
+    hints = field_types(cls)
+    for name in cls.__struct_fields__:
+        where = f"{path}.{name}" if path else name
+        if name not in obj:
+            raise InvalidField(where, f"missing field of {getattr(cls, 'TYPE', cls.__name__)!r}")
+        sub = unwrap(hints[name])
+        if isinstance(sub, type) and issubclass(sub, Record):
+            _require_all(obj[name], sub, where)
+        elif getattr(sub, "__origin__", None) is tuple and isinstance(obj[name], list):
+            item = unwrap(sub.__args__[0])
+            if isinstance(item, type) and issubclass(item, Record):
+                for i, value in enumerate(obj[name]):
+                    _require_all(value, item, f"{where}[{i}]")
 
-    Subclasses set ``TYPE`` (the wire ``type``) and, for fields holding other messages,
-    ``NESTED = {"field": MessageClass}`` or ``{"field": (MessageClass,)}`` for a list.
-    """
+
+class Message(Record, frozen=True):
+    """Base of every payload. Subclasses set ``TYPE`` (the wire ``type``)."""
 
     TYPE: ClassVar[str] = ""
-    NESTED: ClassVar[Mapping[str, type[Message] | tuple[type[Message]]]] = {}
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -102,11 +99,16 @@ class Message:
 
     def to_obj(self) -> dict[str, Any]:
         """The message's fields as a JSON-ready ``dict`` (no envelope)."""
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}  # type: ignore[arg-type]
+        return self._builtins()
 
     def to_json(self) -> bytes:
         """Encode with the ``{"v", "type"}`` envelope. Raises ``PayloadTooLarge``."""
-        return codec.dumps({"v": VERSION, "type": self.TYPE, **self.to_obj()})
+        body = codec.dumps(self)
+        head = b'{"v":%d,"type":"%s"' % (VERSION, self.TYPE.encode())
+        data = head + (b"," + body[1:] if len(body) > 2 else b"}")
+        if len(data) > codec.MAX_PAYLOAD_BYTES:
+            raise codec.PayloadTooLarge(len(data), codec.MAX_PAYLOAD_BYTES)
+        return data
 
     @classmethod
     def from_obj(cls, obj: Any) -> Self:
@@ -117,31 +119,8 @@ class Message:
         """
         if not isinstance(obj, Mapping):
             raise InvalidField("", f"expected a {cls.TYPE!r} object, got {type(obj).__name__}")
-        names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
-        for key in obj:
-            if key not in names:
-                raise InvalidField(str(key)[:80], f"unexpected field for {cls.TYPE!r}")
-        for name in names:
-            if name not in obj:
-                raise InvalidField(name, f"missing field of {cls.TYPE!r}")
-        kwargs: dict[str, Any] = {}
-        for name in names:
-            value = obj[name]
-            spec = cls.NESTED.get(name)
-            if spec is None:
-                kwargs[name] = value
-            elif isinstance(spec, tuple):
-                if not isinstance(value, list):
-                    raise InvalidField(name, f"expected a list, got {type(value).__name__}")
-                items = []
-                for i, item in enumerate(value):
-                    with field_prefix(f"{name}[{i}]"):
-                        items.append(spec[0].from_obj(item))
-                kwargs[name] = tuple(items)
-            else:
-                with field_prefix(name):
-                    kwargs[name] = spec.from_obj(value)
-        return cls(**kwargs)
+        _require_all(obj, cls, "")
+        return convert(obj, cls)
 
     @classmethod
     def from_json(cls, data: Any) -> Self:
@@ -167,11 +146,6 @@ def message_types() -> Mapping[str, type[Message]]:
     return FrozenMap(_REGISTRY)
 
 
-def set_field(obj: Any, name: str, value: Any) -> None:
-    """Assign a normalised value in a frozen dataclass's ``__post_init__``."""
-    object.__setattr__(obj, name, value)
-
-
 #: Machine-readable ``ErrorReply.code`` values.
 ERROR_CODES: tuple[str, ...] = (
     "invalid_request",  # the payload or selector parameters failed validation
@@ -184,8 +158,7 @@ ERROR_CODES: tuple[str, ...] = (
 )
 
 
-@dataclass(frozen=True)
-class ErrorReply(Message):
+class ErrorReply(Message, frozen=True):
     """Payload of every ``query.reply_err``.
 
     Attributes:
@@ -193,17 +166,14 @@ class ErrorReply(Message):
         reason: human-readable explanation (1..4096 characters).
     """
 
-    TYPE = "error"
+    TYPE: ClassVar[str] = "error"
 
-    code: str
-    reason: str
-
-    def __post_init__(self) -> None:
-        as_choice(self.code, "code", ERROR_CODES)
-        as_str(self.reason, "reason", max_len=4096, allow_empty=False)
+    code: Literal[ERROR_CODES]  # type: ignore[valid-type]
+    reason: Annotated[str, Meta(min_length=1, max_length=4096)]
 
     @classmethod
     def from_exception(cls, exc: BaseException, code: str = "invalid_request") -> ErrorReply:
         """An error reply carrying ``str(exc)`` (truncated to fit)."""
         reason = str(exc) or type(exc).__name__
         return cls(code, reason[:4096])
+

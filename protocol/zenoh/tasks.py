@@ -30,18 +30,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Literal
 
-from .codec import NAME_PATTERN, as_float_map, as_float_tuple, as_str
 from .errors import InvalidField
+from .fields import Finite, Name, NonNegative, Positive, Record, convert
 
 __all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task"]
 
 
-@dataclass(frozen=True)
-class TaskSpec:
+class TaskSpec(Record, frozen=True):
     """The policy parameter space and cost terms of one task.
 
     Attributes:
@@ -53,34 +51,26 @@ class TaskSpec:
         horizon_s: episode length T in simulated seconds.
     """
 
-    name: str
-    param_names: tuple[str, ...]
-    lower: tuple[float, ...]
-    upper: tuple[float, ...]
-    term_names: tuple[str, ...]
-    default_weights: Mapping[str, float]
-    horizon_s: float
+    name: Name
+    param_names: tuple[Name, ...]
+    lower: tuple[Finite, ...]
+    upper: tuple[Finite, ...]
+    term_names: tuple[Name, ...]
+    default_weights: dict[Name, NonNegative]
+    horizon_s: Positive
 
-    def __post_init__(self) -> None:
-        as_str(self.name, "name", pattern=NAME_PATTERN)
+    def _check(self) -> None:
         n = len(self.param_names)
         if n < 1 or len(set(self.param_names)) != n:
             raise InvalidField("param_names", "must be non-empty and unique")
-        for i, p in enumerate(self.param_names):
-            as_str(p, f"param_names[{i}]", pattern=NAME_PATTERN)
-        lower = as_float_tuple(self.lower, "lower", length=n)
-        upper = as_float_tuple(self.upper, "upper", length=n)
-        if any(lo >= hi for lo, hi in zip(lower, upper)):
+        for field in ("lower", "upper"):
+            if len(getattr(self, field)) != n:
+                raise InvalidField(field, f"expected {n} values, got {len(getattr(self, field))}")
+        if any(lo >= hi for lo, hi in zip(self.lower, self.upper)):
             raise InvalidField("upper", "every upper bound must exceed its lower bound")
         if len(set(self.term_names)) != len(self.term_names) or not self.term_names:
             raise InvalidField("term_names", "must be non-empty and unique")
-        weights = as_float_map(
-            self.default_weights, "default_weights", lo=0.0,
-            names=self.term_names, required=self.term_names,
-        )
-        object.__setattr__(self, "lower", lower)
-        object.__setattr__(self, "upper", upper)
-        object.__setattr__(self, "default_weights", weights)
+        self.check_weights(self.default_weights, "default_weights")
 
     @property
     def dim(self) -> int:
@@ -96,7 +86,9 @@ class TaskSpec:
         Raises:
             InvalidField: wrong length, not finite, or outside ``[lower, upper]``.
         """
-        values = as_float_tuple(theta, field, length=self.dim)
+        values = convert(theta, tuple[Finite, ...], field)
+        if len(values) != self.dim:
+            raise InvalidField(field, f"expected {self.dim} values, got {len(values)}")
         for i, (x, lo, hi) in enumerate(zip(values, self.lower, self.upper)):
             if not lo <= x <= hi:
                 raise InvalidField(
@@ -105,9 +97,21 @@ class TaskSpec:
                 )
         return values
 
+    def check_names(self, names: Any, field: str, *, complete: bool) -> None:
+        """Every name is one of the task's terms (and, if ``complete``, every term is named)."""
+        for name in names:
+            if name not in self.term_names:
+                raise InvalidField(f"{field}.{name}",
+                                   f"not a cost term of {self.name!r}; expected one of {list(self.term_names)}")
+        missing = [n for n in self.term_names if n not in names]
+        if complete and missing:
+            raise InvalidField(field, f"missing entries {missing}")
+
     def check_weights(self, weights: Any, field: str = "weights") -> Mapping[str, float]:
         """Validate a complete weight set: exactly the task's term names, finite, >= 0."""
-        return as_float_map(weights, field, lo=0.0, names=self.term_names, required=self.term_names)
+        checked = convert(weights, dict[Name, NonNegative], field)
+        self.check_names(checked, field, complete=True)
+        return checked
 
     def total_cost(
         self, terms: Mapping[str, float], weights: Mapping[str, float] | None = None
@@ -119,10 +123,13 @@ class TaskSpec:
             weights: defaults to :attr:`default_weights`; names missing from a partial
                 weight mapping fall back to the defaults.
         """
-        checked = as_float_map(terms, "cost_terms", names=self.term_names, required=self.term_names)
+        checked = convert(terms, dict[Name, Finite], "cost_terms")
+        self.check_names(checked, "cost_terms", complete=True)
         w = dict(self.default_weights)
         if weights is not None:
-            w.update(as_float_map(weights, "weights", lo=0.0, names=self.term_names))
+            partial = convert(weights, dict[Name, NonNegative], "weights")
+            self.check_names(partial, "weights", complete=False)
+            w.update(partial)
         total = math.fsum(w[k] * checked[k] for k in self.term_names)
         if not math.isfinite(total):
             raise InvalidField("cost_terms", "weighted total is not finite")
@@ -178,3 +185,6 @@ def get_task(name: Any, field: str = "task") -> TaskSpec:
     if not isinstance(name, str) or name not in TASKS:
         raise InvalidField(field, f"unknown task {name!r}; expected one of {list(TASK_NAMES)}")
     return TASKS[name]
+
+#: The type of a ``task`` field on the wire (a JSON Schema enum of :data:`TASK_NAMES`).
+TaskName = Literal[TASK_NAMES]  # type: ignore[valid-type]

@@ -208,7 +208,7 @@ def test_every_message_type_is_generated():
     }
 
 
-@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages)
 def test_round_trip_is_exact(msg):
     data = msg.to_json()
@@ -223,6 +223,7 @@ def test_round_trip_is_exact(msg):
     assert hash(again) == hash(msg)
 
 
+@settings(deadline=None)
 @given(critic_replies())
 def test_nested_points_round_trip(reply):
     assert CriticPoint.from_json(reply.points[0].to_json()) == reply.points[0]
@@ -316,6 +317,8 @@ def test_numpy_inputs_are_normalised_to_plain_floats():
         (lambda: SelectReply("bracing", (0.5,), 1.0, 1.0, 2.0, 1.0, {"damage": 1.0}, False),
          "weights"),
         (lambda: LearnerState("run1", "bracing", "running", (0.5,), (0.0,), 0.0,
+                              TASKS["bracing"].default_weights, 0), "sigma[0]"),
+        (lambda: LearnerState("run1", "bracing", "running", (0.5,), (0.1, 0.1), 0.0,
                               TASKS["bracing"].default_weights, 0), "sigma"),
         (lambda: LearnerState("run1", "bracing", "dancing", (0.5,), (0.1,), 0.0,
                               TASKS["bracing"].default_weights, 0), "status"),
@@ -354,19 +357,19 @@ def test_episode_done_requires_matching_request_and_result():
 # --------------------------------------------------------------------------- garbage on the wire
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=200), st.sampled_from(MESSAGE_CLASSES + [None]))
 def test_random_bytes_raise_typed_errors(data, cls):
     assert typed_decode(cls, data) is None
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(json_values, st.sampled_from(MESSAGE_CLASSES + [None]))
 def test_random_json_raises_typed_errors(value, cls):
     assert typed_decode(cls, json.dumps(value).encode()) is None
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(st.dictionaries(st.text(max_size=12), json_values, max_size=8), st.sampled_from(MESSAGE_CLASSES))
 def test_random_fields_under_a_valid_envelope_raise_typed_errors(fields, cls):
     obj = {**fields, "v": 1, "type": cls.TYPE}
@@ -401,7 +404,7 @@ def _delete(obj, path):
     return out
 
 
-@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages, st.data())
 def test_mutated_values_are_typed_errors_or_still_valid(msg, data):
     obj = json.loads(msg.to_json())
@@ -414,7 +417,7 @@ def test_mutated_values_are_typed_errors_or_still_valid(msg, data):
         assert out.to_json() == type(msg).from_json(mutated).to_json()
 
 
-@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages, st.data())
 def test_deleted_fields_are_invalid_field(msg, data):
     obj = json.loads(msg.to_json())
@@ -426,7 +429,7 @@ def test_deleted_fields_are_invalid_field(msg, data):
     assert info.value.field == top
 
 
-@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages, names.filter(lambda n: n not in ("v", "type")), json_values)
 def test_extra_fields_are_invalid_field(msg, extra, value):
     obj = json.loads(msg.to_json())
@@ -437,7 +440,7 @@ def test_extra_fields_are_invalid_field(msg, extra, value):
     assert info.value.field == extra
 
 
-@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages, st.data(), st.sampled_from(["NaN", "Infinity", "-Infinity"]))
 def test_nan_and_infinity_literals_are_malformed(msg, data, literal):
     obj = json.loads(msg.to_json())
@@ -449,7 +452,7 @@ def test_nan_and_infinity_literals_are_malformed(msg, data, literal):
         type(msg).from_json(text.encode())
 
 
-@settings(max_examples=100, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(messages, st.data())
 def test_overflowing_numbers_are_invalid_field(msg, data):
     obj = json.loads(msg.to_json())
@@ -461,6 +464,7 @@ def test_overflowing_numbers_are_invalid_field(msg, data):
         type(msg).from_json(text.encode())
 
 
+@settings(deadline=None)
 @given(messages, st.integers().filter(lambda v: v != 1))
 def test_unknown_versions_are_unsupported(msg, version):
     obj = json.loads(msg.to_json())
@@ -472,6 +476,7 @@ def test_unknown_versions_are_unsupported(msg, version):
         decode(json.dumps(obj).encode())
 
 
+@settings(deadline=None)
 @given(messages, json_values.filter(lambda v: type(v) is not int))
 def test_non_integer_versions_are_invalid_field(msg, version):
     obj = json.loads(msg.to_json())
@@ -481,6 +486,7 @@ def test_non_integer_versions_are_invalid_field(msg, version):
     assert info.value.field == "v"
 
 
+@settings(deadline=None)
 @given(messages, st.sampled_from(MESSAGE_CLASSES))
 def test_wrong_type_tag_is_invalid_field(msg, cls):
     assume(cls is not type(msg))
@@ -561,6 +567,7 @@ select_queries = st.builds(
 )
 
 
+@settings(deadline=None)
 @given(critic_queries())
 def test_critic_query_parameters_round_trip(query):
     text = query.to_parameters()
@@ -568,12 +575,13 @@ def test_critic_query_parameters_round_trip(query):
     assert CriticQuery.from_parameters(text) == query
 
 
+@settings(deadline=None)
 @given(select_queries)
 def test_select_query_parameters_round_trip(query):
     assert SelectQuery.from_parameters(query.to_parameters()) == query
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(st.text(max_size=60), st.sampled_from([CriticQuery, SelectQuery]))
 def test_random_parameter_text_raises_typed_errors(text, cls):
     try:
@@ -657,6 +665,7 @@ def test_task_specs_match_the_design():
     assert bracing.total_cost({**zero, "damage": 1.0}, {"damage": 0.0}) == 0.0
 
 
+@settings(deadline=None)
 @given(task_names, st.data())
 def test_total_cost_is_linear_in_the_terms(task, data):
     spec = TASKS[task]
