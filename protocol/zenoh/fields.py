@@ -89,12 +89,18 @@ def convert(obj: Any, tp: Any, field: str = "") -> Any:
         data = msgspec.to_builtins(obj, enc_hook=plain)
         return msgspec.convert(data, tp, strict=True)
     except TypeError as exc:  # to_builtins: not a JSON value
-        raise InvalidField(field, str(exc)) from None
+        error = InvalidField("", str(exc))
     except msgspec.ValidationError as exc:
         error = _invalid_field(exc, data, tp)
-        raise (error.prefixed(field) if field else error) from None
     finally:
         _CONVERTING.reset(token)
+    try:
+        raise (error.prefixed(field) if field else error) from None
+    finally:
+        # no frame may keep the raised error: an error -> traceback -> frame -> error cycle
+        # keeps every caller's frame alive until the garbage collector runs, and with them
+        # e.g. a zenoh.Query, which then answers nothing until its querier times out
+        del error
 
 
 def converting() -> bool:
@@ -243,8 +249,14 @@ def _first_bad(mapping: dict[str, Any], tp: Any, keys: bool) -> Any:
     raise LookupError("no offending entry")  # pragma: no cover - msgspec said there is one
 
 
+_BOUND = re.compile(r"^Expected `[^`]+` (?P<op>>=|>|<=|<) (?P<bound>\S+)$")
+_LENGTH = re.compile(r"^Expected `(?P<kind>[^`]+)` of length (?P<op>>=|<=) (?P<n>\d+)$")
+_REGEX = re.compile(r"^Expected `str` matching regex (?P<pattern>.*)$", re.S)
+_OPS = {">=": "below the minimum", ">": "not above", "<=": "above the maximum", "<": "not below"}
+
+
 def _reason(message: str, value: Any, tp: Any, name: str) -> str:
-    """msgspec's message, said the way a person reads it."""
+    """msgspec's message, said the way a person reads it (with the value received)."""
     shown = repr(value) if not isinstance(value, (dict, list)) else type(value).__name__
     shown = shown[:80]
     if _FINITE_BOUND in message or (isinstance(value, float) and not math.isfinite(value)):
@@ -252,10 +264,19 @@ def _reason(message: str, value: Any, tp: Any, name: str) -> str:
     if message.startswith("Invalid enum value"):
         choices = list(typing.get_args(unwrap(tp)))
         return f"unknown {name} {shown}; expected one of {choices}"
+    if found := _BOUND.match(message):
+        return f"{shown} is {_OPS[found['op']]} {found['bound']}"
+    if found := _LENGTH.match(message):
+        size, n = len(value), int(found["n"])
+        unit = "characters" if found["kind"] == "str" else "entries"
+        if found["op"] == ">=":
+            return "must not be empty" if n == 1 else f"expected at least {n} {unit}, got {size}"
+        return f"expected at most {n} {unit}, got {size}"
+    if found := _REGEX.match(message):
+        return f"{shown} does not match {found['pattern']}"
     owner = getattr(unwrap(tp), "TYPE", "")
     if owner and message.startswith("Expected `object`"):
         return f"{message}: expected a {owner!r} object"
     if "got `" not in message:
         return f"{message}, got {shown}"
     return message
-
