@@ -1,6 +1,8 @@
 """The agent's heartbeat producer (node ``AGENT_NODE_ID``) on its own timer.
 
-python-can-remote 0.3's periodic tasks cannot change their data (NOTES.md), so the agent
+python-can-remote 0.3's periodic tasks cannot change their data (its
+``CyclicSendTask.modify_data`` calls ``super(self)`` and raises TypeError, so canopen's
+heartbeat producer would keep reporting the old NMT state over a remote bus), so the agent
 sends its heartbeat from a thread, reporting the state the caller gives.
 """
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """Pin BLAS to one thread around the numerical kernels.
 
 The machine has 2 cores; OpenBLAS on its default threading oversubscribes and makes the
-small (n <= a few hundred) matrix products of the critic ~25x slower (NOTES.md, VHGP).
+small (n <= a few hundred) matrix products of the critic ~25x slower (measured: a VHGP fit
+at n ~ 100 took 0.1-0.4 s pinned, ~25x that on OpenBLAS's default threading).
 `single_threaded_blas()` limits every BLAS library loaded in the process (numpy's and
 scipy's OpenBLAS) for the duration of a call and restores the previous limits after.
 """

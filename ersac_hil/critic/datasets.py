@@ -1,4 +1,5 @@
-"""Synthetic heteroscedastic regression sets used to validate the VHGP (NOTES.md).
+"""Synthetic heteroscedastic regression sets used to validate the VHGP: Goldberg, Williams and
+Yuan, the sets of Lazaro-Gredilla & Titsias (ICML 2011) with their sizes (60, 200, 200).
 
 Each generator returns a `HeteroscedasticSet` of n points drawn with the given numpy
 Generator, plus the true mean and noise std as functions (for recovery checks).

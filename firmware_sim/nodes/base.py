@@ -1,7 +1,8 @@
 """The firmware's CANopen stack: a CiA 301 slave built from a bench EDS file.
 
-``SlaveNode`` extends canopen's ``LocalNode`` with what the library leaves to the application
-(see NOTES.md): EDS value-range checks on SDO download (abort 0x0609003x), RPDO values kept
+``SlaveNode`` extends canopen's ``LocalNode`` with what canopen 2.4 leaves to the application
+(its LocalNode ignores SYNC, keeps RPDO values out of the object dictionary, has no heartbeat
+consumer and sends no boot-up after an NMT reset): EDS value-range checks on SDO download (abort 0x0609003x), RPDO values kept
 as application state and applied at the next SYNC, TPDOs sampled from that state and sent
 after each SYNC, a heartbeat producer on our own timer (python-can-remote's periodic tasks
 cannot change data), boot-up after an NMT reset, and a consumer-heartbeat watchdog on the
