@@ -8,7 +8,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test wheel-smoke bench venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -23,6 +23,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# build the wheel, install it into a fresh venv, smoke-test it from outside the tree (CI runs it)
+wheel-smoke:
+	tools/wheel_smoke.sh $(PYTHON)
 
 bench: $(STAMP)
 	$(BIN)/python bench/learner.py --quick
