@@ -82,8 +82,9 @@ def bottle_height(trace: Trace, robot: RobotParameters = UBOT) -> np.ndarray:
                                trace.position[:, ARM_SLICES["right"]], trace.pitch)
 
 
-def h_error_sq(trace: Trace, goal_height: float, robot: RobotParameters = UBOT) -> float:
-    return _integral((goal_height - bottle_height(trace, robot)) ** 2, trace.dt)
+def h_error_sq(height: np.ndarray, goal_height: float, dt: float) -> float:
+    """int (goal - h)^2 dt over the bottle height per sample ``height``, shape (n,)."""
+    return _integral((goal_height - height) ** 2, dt)
 
 
 def summary(trace: Trace, robot: RobotParameters = UBOT) -> dict[str, float]:

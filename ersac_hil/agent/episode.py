@@ -38,7 +38,7 @@ from ersac_hil.agent.bus import AgentBus, EmcyEvent
 from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
 from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
 from ersac_hil.agent.robot import UBOT, RobotParameters
-from ersac_hil.agent.tasks import Task, default_tasks, lookup
+from ersac_hil.agent.tasks import EmcyMark, Task, default_tasks, lookup
 from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
 from protocol.can.bench import TESTBENCH
 from protocol.can.objects import EmcyCode, Status
@@ -225,7 +225,7 @@ class EpisodeRunner:
                                     arm_control=commands.arm_control)
                 tel = bus.cycle(commands)
                 run.samples.append(tel)
-                why = end(tel, len(run.samples))
+                why = end(tel, len(run.samples), run.failures)
                 if why is not None:
                     run.detail = why
                     break
@@ -276,8 +276,9 @@ class EpisodeRunner:
         terms: dict[str, float] = {}
         total = None
         if run.status == "ok":
-            codes = [ev.code for ev in run.emcy]
-            terms = plan.task.cost_terms(trace, codes)
+            first = run.samples[0].cycle
+            marks = [EmcyMark(ev.code, min(max(ev.cycle - first, 0), len(trace) - 1)) for ev in run.emcy]
+            terms = plan.task.cost_terms(trace, marks)
             if terms.get("damage"):
                 run.failures["hardware_damage"] = True
             total = TASKS[request.task].total_cost(terms, self.config.weights.get(request.task))

@@ -40,8 +40,9 @@ __all__ = [
     "ConfigError",
     "DaemonConfig",
     "LEARNER_FIELDS",
-    "default_theta0",
-    "default_sigma",
+    "TASK_DEFAULTS",
+    "TaskDefaults",
+    "task_defaults",
     "load_toml",
     "merge",
 ]
@@ -55,29 +56,40 @@ class ConfigError(ValueError):
 LEARNER_FIELDS: tuple[str, ...] = (
     "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed",
 )
-#: Default clip of eta / r~ per task. The paper clips to [0.01, 0.5] for its costs; the
-#: simulated bracing costs are ~10x larger (J ~ 200-400, std ~ 50, docs/robot_model.md), so
-#: r~ is ~10x larger too and the same clip scaled by 1/10 keeps eta / r~ = 0.1 / r~ inside it
-#: (with [0.01, 0.5] the floor takes over and single outlier costs move theta by ~0.4).
-DEFAULT_LR_RANGE: dict[str, tuple[float, float]] = {"bracing": (0.001, 0.05), "lifting": (0.01, 0.5)}
-#: Episode budget of a new run unless configured.
-DEFAULT_EPISODES = 45
+class TaskDefaults(msgspec.Struct, frozen=True):
+    """The learner settings of a new run of one task unless configured (shapes ``(dim,)``)."""
+
+    theta0: tuple[float, ...]
+    sigma: tuple[float, ...]
+    eta: float
+    epsilon: float
+    lr_range: tuple[float, float]
+    episodes: int
+
+
+#: The paper's settings (Kuindersma, Grupen & Barto 2012, Sections 5.1-5.2) per task.
+#: bracing: eta 0.7, sigma 0.05, epsilon = 4 sigma = 0.2, eta / r~ in [0.01, 0.5], 45 episodes,
+#: from a low-stiffness policy. lifting: eta 0.5, sigma 0.075 (every parameter: rad for the
+#: waypoints, s for the durations), epsilon = 3.5 sigma, eta / r~ in [0.01, 0.5], 30 episodes,
+#: from a hand-selected smooth, short motion to the goal that succeeds only part of the time:
+#: waypoints on the straight line in joint space from the start pose (0, 0.95) to the goal pose
+#: (2.657, 0.3), 0.4 s per segment (docs/daemon.md: its measured success rate).
+TASK_DEFAULTS: dict[str, TaskDefaults] = {
+    "bracing": TaskDefaults(theta0=(0.2,), sigma=(0.05,), eta=0.7, epsilon=0.2, lr_range=(0.01, 0.5),
+                            episodes=45),
+    "lifting": TaskDefaults(theta0=(0.886, 0.733, 1.771, 0.517, 0.4, 0.4, 0.4), sigma=(0.075,) * 7,
+                            eta=0.5, epsilon=3.5 * 0.075, lr_range=(0.01, 0.5), episodes=30),
+}
 #: Sentinel values of ``resume``.
 RESUME_LATEST, RESUME_NEW = "latest", "new"
-#: Default per-parameter exploration std as a fraction of each bound's range.
-SIGMA_FRACTION = 0.1
 
 
-def default_theta0(task: str) -> tuple[float, ...]:
-    """Middle of the task's parameter box, shape ``(dim,)``."""
+def task_defaults(task: str) -> TaskDefaults:
+    """The default learner settings of ``task`` (``InvalidField`` if it has none)."""
     spec = get_task(task)
-    return tuple(0.5 * (lo + hi) for lo, hi in zip(spec.lower, spec.upper))
-
-
-def default_sigma(task: str) -> tuple[float, ...]:
-    """``SIGMA_FRACTION`` of each parameter's range, shape ``(dim,)``."""
-    spec = get_task(task)
-    return tuple(SIGMA_FRACTION * (hi - lo) for lo, hi in zip(spec.lower, spec.upper))
+    if spec.name not in TASK_DEFAULTS:
+        raise InvalidField("task", f"no default settings for task {task!r}")
+    return TASK_DEFAULTS[spec.name]
 
 
 Kappa = Annotated[float, Meta(ge=KAPPA_MIN, le=KAPPA_MAX)]
@@ -95,16 +107,18 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
         prefix: key prefix (default ``ersac``).
         task: ``bracing`` or ``lifting`` (``protocol.zenoh.TASKS``).
         kappa: initial risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``.
-        episodes: successful ("ok") episodes after which the run is finished; ``None``:
-            :data:`DEFAULT_EPISODES` for a new run, the stored budget for a resumed one.
+        episodes: successful ("ok") episodes after which the run is finished; ``None``: the
+            task's default (:data:`TASK_DEFAULTS`) for a new run, the stored budget for a
+            resumed one.
         seed: run seed (learner RNG and scenario seeds derive from it); ``None`` draws one
             when the run is created (it is stored).
-        theta0: initial policy mean, ``(dim,)`` within the task bounds (default: middle).
-        sigma: exploration std per parameter, ``(dim,)``, > 0 (default: 10 % of each range).
+        theta0: initial policy mean, ``(dim,)`` within the task bounds.
+        sigma: exploration std per parameter, ``(dim,)``, > 0.
         eta: learning rate numerator of the update (``eta / r~`` is clipped to ``lr_range``).
         epsilon: radius of the critic's neighbourhood ball (in theta units).
-        lr_range: ``(lo, hi)`` clip of ``eta / r~``, ``0 < lo <= hi`` (default:
-            :data:`DEFAULT_LR_RANGE` of the task).
+        lr_range: ``(lo, hi)`` clip of ``eta / r~``, ``0 < lo <= hi``.
+            Each of theta0, sigma, eta, epsilon, lr_range: ``None`` takes the task's paper
+            setting (:data:`TASK_DEFAULTS`).
         weights: complete cost-term weights (the task's term names), >= 0.
         zenoh: Zenoh endpoints to connect to as a client, each ``tcp/127.0.0.1:PORT``.
         db: SQLite store path.
@@ -128,8 +142,8 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     seed: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
     theta0: tuple[Finite, ...] | None = None
     sigma: tuple[Positive, ...] | None = None
-    eta: Positive = 0.1
-    epsilon: Positive = 0.25
+    eta: Positive | None = None
+    epsilon: Positive | None = None
     lr_range: tuple[Positive, Positive] | None = None
     weights: dict[Name, NonNegative] | None = None
     prefix: str = "ersac"
@@ -158,12 +172,15 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
         except ValueError as exc:
             raise InvalidField("robot", str(exc)) from None
         spec = get_task(self.task)
-        set_("theta0", spec.check_theta(default_theta0(self.task) if self.theta0 is None else self.theta0, "theta0"))
-        sigma = default_sigma(self.task) if self.sigma is None else self.sigma
+        defaults = task_defaults(self.task)
+        set_("theta0", spec.check_theta(defaults.theta0 if self.theta0 is None else self.theta0, "theta0"))
+        sigma = defaults.sigma if self.sigma is None else self.sigma
         if len(sigma) != spec.dim:
             raise InvalidField("sigma", f"needs {spec.dim} values for this task, got {len(sigma)}")
         set_("sigma", sigma)
-        lr = DEFAULT_LR_RANGE[self.task] if self.lr_range is None else self.lr_range
+        set_("eta", defaults.eta if self.eta is None else self.eta)
+        set_("epsilon", defaults.epsilon if self.epsilon is None else self.epsilon)
+        lr = defaults.lr_range if self.lr_range is None else self.lr_range
         if not lr[0] <= lr[1]:
             raise InvalidField("lr_range", f"must satisfy 0 < lo <= hi, got {lr}")
         set_("lr_range", lr)
@@ -184,7 +201,7 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
 
     @property
     def episodes_or_default(self) -> int:
-        return DEFAULT_EPISODES if self.episodes is None else self.episodes
+        return task_defaults(self.task).episodes if self.episodes is None else self.episodes
 
     @property
     def keys(self) -> KeySpace:

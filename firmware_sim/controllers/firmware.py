@@ -44,7 +44,7 @@ DEFAULT_OVERCURRENT_TIME = 0.1
 """s of continuous current limiting before the over-current fault latches."""
 
 
-@dataclass
+@dataclass(eq=False)  # identity: two running splines never compare their arrays
 class _RunningSpline:
     axes: np.ndarray          # (k,) axis numbers
     pos_ctrl: np.ndarray      # (k,) ctrl addresses of the pos inputs
@@ -184,7 +184,7 @@ class Firmware:
         self.spline_done[axes] = False
 
     def cancel_spline(self, i: int) -> None:
-        for s in self._splines:
+        for s in tuple(self._splines):  # _finish removes from the list
             if i in s.axes:
                 self._finish(s, completed=False)
 

@@ -7,8 +7,12 @@
 - Initial state: arms down-forward with the bottle centre at ~0.16 m (its bottom 5 cm above
   the floor), body pitched so that robot + bottle are statically balanced.
 - Grasp failure: after every substep the translational force in each weld is compared with
-  ``grasp_force_limit``; above it the grasp breaks (both welds released, the bottle falls):
+  the episode's grip limit; above it the grasp breaks (both welds released, the bottle falls):
   ``bottle_dropped``. A violent trajectory (large hand accelerations) drops the bottle.
+- Random per episode (the scenario seed): the grip limit. The bottle sits loosely in simple
+  claws, so how firmly it is held varies from trial to trial: normal around
+  ``grasp_force_limit`` with relative spread ``grip_spread``, kept within +-2.5 spreads. A
+  trajectory whose peak grasp force is near the nominal limit succeeds only part of the time.
 - Ground truth: the bottle's height (origin = shell centre) and the centre of mass of shell +
   liquid, which moves with the slosh.
 """
@@ -38,8 +42,10 @@ class Lifting(Scenario):
     goal_height = 1.2
     """m, target height of the bottle centre."""
     grasp_force_limit = 25.0
-    """N per hand (about 5x the static share of the bottle's weight; a smooth 3 s lift peaks
-    near 10 N)."""
+    """N per hand, nominal grip limit (about 5x the static share of the bottle's weight; a
+    smooth 3 s lift peaks near 10 N)."""
+    grip_spread = 0.15
+    """Relative standard deviation of the grip limit between episodes."""
 
     def build_spec(self) -> mujoco.MjSpec:
         spec = robot_spec()
@@ -58,6 +64,7 @@ class Lifting(Scenario):
         self._bottle_q = int(m.jnt_qposadr[jid])
         self._hands = [physics.site_id("hand_left"), physics.site_id("hand_right")]
         self._eqs = np.array([physics.equality_id(name) for name, _ in GRASPS])
+        self.grip_limit = self.grasp_force_limit
         place = dict(payload=(self._bottle,), place_payload=self._place_bottle)
         balanced_qpos(physics, self.pose, **place)       # grasps off: find the pose
         self._set_grasp_poses(physics)
@@ -91,6 +98,8 @@ class Lifting(Scenario):
 
     def initialize_episode(self, physics: Physics, rng: np.random.Generator) -> None:
         super().initialize_episode(physics, rng)
+        z = np.clip(rng.standard_normal(), -2.5, 2.5)
+        self.grip_limit = self.grasp_force_limit * (1.0 + self.grip_spread * float(z))
         physics.data.eq_active[self._eqs] = True
         self._dropped = False
         self.peak_grasp_force = 0.0
@@ -106,7 +115,7 @@ class Lifting(Scenario):
         force = max(math.hypot(f[0], f[1], f[2]), math.hypot(f[6], f[7], f[8]))
         if force > self.peak_grasp_force:
             self.peak_grasp_force = force
-        if force <= self.grasp_force_limit:
+        if force <= self.grip_limit:
             return False
         d.eq_active[self._eqs] = False
         self._dropped = True

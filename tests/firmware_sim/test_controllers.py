@@ -220,6 +220,17 @@ def test_arm_tracks_a_spline_sampled_at_the_physics_rate(sim):
     assert arm.setpoint("shoulder_left") == pytest.approx(q1[0])
 
 
+def test_safe_state_of_one_arm_cancels_its_spline_while_the_other_runs(sim):
+    q = [sim.axis(axis).position for axis in ARM]
+    for board, (a, b) in (("arm_left", (0, 1)), ("arm_right", (2, 3))):
+        sim.load_spline(board, [0.0, 2.0], [[q[a], q[b]], [q[a] + 0.3, q[b] + 0.3]], np.zeros((2, 2)))
+        sim.start_spline(board)
+    sim.step()
+    sim.controller("arm_right").enter_safe_state("agent heartbeat lost")  # the second spline
+    assert not sim.controller("arm_right").status("elbow_right").spline_active
+    assert sim.controller("arm_left").status("elbow_left").spline_active
+
+
 def test_setpoint_cancels_a_running_spline(sim):
     q = sim.axis("elbow_right").position
     sim.load_spline("elbow_right", [0.0, 2.0], [q, q + 0.5], [0.0, 0.0])

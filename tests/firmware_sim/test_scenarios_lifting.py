@@ -78,11 +78,26 @@ def test_too_low_spline_misses_the_height(sim, gains):
 
 
 def test_violent_lift_breaks_the_grasp(sim, gains):
-    r = lift(sim, gains, [0.0, 0.3, 0.6], [START[0], 1.6, 3.1], [START[1], 1.8, 0.1], seconds=1.5)
+    # seconds: the grip limit varies with the seed; a grasp that holds longer throws the bottle
+    # further, and it needs more than a second to land
+    r = lift(sim, gains, [0.0, 0.3, 0.6], [START[0], 1.6, 3.1], [START[1], 1.8, 0.1], seconds=2.5)
     drops = [e for e in r["events"] if e.kind == FailureKind.BOTTLE_DROPPED]
     assert len(drops) == 1 and drops[0].sim_time < 0.6
     assert r["truth"].bottle_dropped and sim.status.bottle_dropped
     assert r["final"] < 0.15                       # it fell to the floor
+
+
+def test_grip_limit_varies_between_episodes_around_the_nominal_limit(sim):
+    def grip(seed: int) -> float:
+        sim.reset("lifting", seed)
+        return sim._require().scenario.grip_limit
+
+    limits = [grip(seed) for seed in range(40)]
+    assert grip(3) == limits[3]                    # a pure function of the seed
+    nominal, spread = Lifting.grasp_force_limit, Lifting.grip_spread
+    assert abs(np.mean(limits) - nominal) < 2.5 * nominal * spread / np.sqrt(40)
+    assert 0.5 * spread < np.std(limits) / nominal < 1.5 * spread
+    assert min(limits) >= nominal * (1 - 2.5 * spread) and max(limits) <= nominal * (1 + 2.5 * spread)
 
 
 def test_sloshing_liquid_moves_the_centre_of_mass(sim):

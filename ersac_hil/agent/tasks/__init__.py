@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from ersac_hil.agent.tasks.base import Balance, EndCondition, Task, UnknownTask
+from ersac_hil.agent.tasks.base import Balance, EmcyMark, EndCondition, Task, UnknownTask
 from ersac_hil.agent.tasks.bracing import BracingSetup, BracingTask
 from ersac_hil.agent.tasks.lifting import LiftingSetup, LiftingTask
 
-__all__ = ["Balance", "BracingSetup", "BracingTask", "EndCondition", "LiftingSetup", "LiftingTask",
+__all__ = ["Balance", "BracingSetup", "BracingTask", "EmcyMark", "EndCondition", "LiftingSetup", "LiftingTask",
            "Task", "UnknownTask", "default_tasks", "lookup"]
 
 _TASK_TYPES: tuple[type[Task], ...] = (BracingTask, LiftingTask)

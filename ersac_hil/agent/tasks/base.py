@@ -14,14 +14,14 @@ Call order in one episode (``EpisodeRunner.run``)::
     end = task.end_condition(setup, period_s)     # fresh per episode (may count cycles)
     tel = bus.cycle(commands)                     # first SYNC
     commands = task.begin(bus, setup, tel, commands)   # the commands of every later cycle
-    ... each cycle: LQR wheel torques + the task's arm commands; stop when end(tel, n) says why
-    terms = task.cost_terms(trace, emcy_codes)    # exactly TASKS[name].term_names
+    ... each cycle: LQR wheel torques + the task's arm commands; stop when end(tel, n, failures) says why
+    terms = task.cost_terms(trace, emcy)          # exactly TASKS[name].term_names
     summary |= task.summary(trace); truth = task.ground_truth(bus, flags)
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
@@ -33,9 +33,18 @@ from protocol.zenoh import TASKS, TaskSpec
 
 Setup = TypeVar("Setup")
 
-EndCondition = Callable[[Telemetry, int], "str | None"]
-"""Called after every cycle with its telemetry and the number of cycles so far; returns why
-the episode ends now (the result's ``detail``), or ``None`` to go on."""
+EndCondition = Callable[[Telemetry, int, Mapping[str, bool]], "str | None"]
+"""Called after every cycle with its telemetry, the number of cycles so far and the failure
+flags raised so far (``protocol.zenoh.FAILURE_FLAGS`` names); returns why the episode ends now
+(the result's ``detail``), or ``None`` to go on."""
+
+
+@dataclass(frozen=True)
+class EmcyMark:
+    """An EMCY of the episode for the cost: its code and the index of the trace sample it
+    arrived with (0 = the first cycle)."""
+    code: int
+    index: int
 
 
 class UnknownTask(RequestRefused):
@@ -59,7 +68,7 @@ class Balance:
     strike_acc: float | None = None
 
 
-def never_ends(tel: Telemetry, cycles: int) -> str | None:
+def never_ends(tel: Telemetry, cycles: int, failures: Mapping[str, bool]) -> str | None:
     """End condition of a task that always runs its full horizon."""
     return None
 
@@ -101,7 +110,7 @@ class Task(ABC, Generic[Setup]):
         return never_ends
 
     @abstractmethod
-    def cost_terms(self, trace: Trace, emcy_codes: Iterable[int] = ()) -> dict[str, float]:
+    def cost_terms(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> dict[str, float]:
         """Every cost term of this task by name, in ``spec.term_names`` order."""
 
     def summary(self, trace: Trace) -> dict[str, float]:

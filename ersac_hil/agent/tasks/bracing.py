@@ -15,13 +15,13 @@ Cost terms (``costs``):
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ersac_hil.agent import configure, costs
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import ArmImpedance, BracingPolicy
-from ersac_hil.agent.tasks.base import Balance, Task
+from ersac_hil.agent.tasks.base import Balance, EmcyMark, Task
 from ersac_hil.agent.telemetry import Commands, Trace
 from protocol.can import objects as obj
 from protocol.can.bench import TESTBENCH
@@ -60,8 +60,8 @@ class BracingTask(Task[BracingSetup]):
         configure.apply_impedance(bus, setup.impedance)
         return Commands(arm_left=setup.pose, arm_right=setup.pose)
 
-    def cost_terms(self, trace: Trace, emcy_codes: Iterable[int] = ()) -> dict[str, float]:
-        return self._checked({"damage": costs.damage(trace, emcy_codes),
+    def cost_terms(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> dict[str, float]:
+        return self._checked({"damage": costs.damage(trace, [m.code for m in emcy]),
                               "body_acc_sq": costs.body_acc_sq(trace),
                               "arm_power": costs.arm_power(trace)})
 

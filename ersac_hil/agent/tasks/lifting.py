@@ -5,8 +5,9 @@ Plan: theta (7,) -> the checked spline of ``LiftingPolicy`` from the nominal sta
 refusal before the robot is reset). After the first cycle the spline is planned again from the
 *measured* start pose of each arm (limits checked again), downloaded by SDO, and started by
 the next cycle's START_SPLINE. The episode ends after T = 6 s or at the goal: the spline
-finished, the bottle within ``goal_tolerance_m`` of the goal height and the ground speed below
-``rest_speed_m_s`` for ``rest_s``. The LQR is designed with the bottle at the hands.
+finished, the bottle (still held) within ``goal_tolerance_m`` of the goal height and the ground
+speed below ``rest_speed_m_s`` for ``rest_s``. A dropped bottle is on the floor: the hands at the
+goal height are not the bottle there (the episode goes on to T, its height error counts). The LQR is designed with the bottle at the hands.
 
 Cost terms (``costs``), x = [x_wheel, xdot_wheel, alpha, alpha_dot, h_error]:
     x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
@@ -15,15 +16,17 @@ Cost terms (``costs``), x = [x_wheel, xdot_wheel, alpha, alpha_dot, h_error]:
     xdot_wheel_sq [m^2/s]     int xdot^2 dt, xdot = r (phi_dot + alpha_dot)
     alpha_sq      [rad^2 s]   int alpha^2 dt (IMU pitch, from vertical)
     alphadot_sq   [rad^2/s]   int alpha_dot^2 dt
-    h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height from the measured arm
-                              angles and pitch (``RobotParameters.bottle_height``)
+    h_error_sq    [m^2 s]     int (h_goal - h)^2 dt, h = bottle height: from the measured arm
+                              angles and pitch while the bottle is held
+                              (``RobotParameters.bottle_height``), ``floor_height_m`` from the
+                              cycle its drop was reported (EMCY 0xFF30) on
     power         [J]         consumed electrical energy of all seven motors,
                               int sum_all max(I*V, 0) dt
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,11 +35,11 @@ from ersac_hil.agent import configure, costs
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import LiftingPolicy, Spline
 from ersac_hil.agent.robot import UBOT, RobotParameters
-from ersac_hil.agent.tasks.base import Balance, EndCondition, Task
+from ersac_hil.agent.tasks.base import Balance, EmcyMark, EndCondition, Task
 from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can import objects as obj
 from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH
-from protocol.can.objects import Control, Index, Scenario
+from protocol.can.objects import Control, EmcyCode, Index, Scenario
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,7 @@ class LiftingTask(Task[LiftingSetup]):
         policy: theta -> spline; the nominal start pose and the goal height.
         payload_kg: the bottle, for the balance reference and the LQR model.
         goal_tolerance_m, rest_speed_m_s, rest_s: the end condition at the goal.
+        floor_height_m: height of a dropped bottle's centre (lying on the floor) [m].
         robot: kinematics for the bottle height and the ground speed.
     """
     policy: LiftingPolicy = LiftingPolicy()
@@ -59,6 +63,7 @@ class LiftingTask(Task[LiftingSetup]):
     goal_tolerance_m: float = 0.05
     rest_speed_m_s: float = 0.05
     rest_s: float = 0.25
+    floor_height_m: float = 0.05
     robot: RobotParameters = UBOT
     name = "lifting"
     scenario = Scenario.LIFTING
@@ -90,9 +95,9 @@ class LiftingTask(Task[LiftingSetup]):
         rest_needed = int(round(self.rest_s / period_s))
         rest = 0
 
-        def at_goal_and_resting(tel: Telemetry, cycles: int) -> str | None:
+        def at_goal_and_resting(tel: Telemetry, cycles: int, failures: Mapping[str, bool]) -> str | None:
             nonlocal rest
-            if cycles <= spline_cycles:
+            if cycles <= spline_cycles or failures.get("bottle_dropped"):
                 return None
             rest = rest + 1 if self._at_goal(tel) else 0
             return f"goal reached at {cycles * period_s:.3f} s" if rest >= rest_needed else None
@@ -104,13 +109,24 @@ class LiftingTask(Task[LiftingSetup]):
         speed = robot.wheel_radius * (float(np.mean(tel.wheel_velocities)) + tel.pitch_rate)
         return abs(h - self.policy.goal_height) < self.goal_tolerance_m and abs(speed) < self.rest_speed_m_s
 
-    def cost_terms(self, trace: Trace, emcy_codes: Iterable[int] = ()) -> dict[str, float]:
-        robot, goal = self.robot, self.policy.goal_height
+    def cost_terms(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> dict[str, float]:
+        robot = self.robot
         return self._checked({"x_wheel_sq": costs.x_wheel_sq(trace, robot),
                               "xdot_wheel_sq": costs.xdot_wheel_sq(trace, robot),
                               "alpha_sq": costs.alpha_sq(trace), "alphadot_sq": costs.alphadot_sq(trace),
-                              "h_error_sq": costs.h_error_sq(trace, goal, robot),
+                              "h_error_sq": costs.h_error_sq(self.bottle_height(trace, emcy),
+                                                             self.policy.goal_height, trace.dt),
                               "power": costs.power(trace)})
+
+    def bottle_height(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> np.ndarray:
+        """Bottle height [m] per sample, shape (n,): forward kinematics of the hands until the
+        first sample with a BOTTLE_DROPPED EMCY, ``floor_height_m`` from there on."""
+        h = costs.bottle_height(trace, self.robot)
+        drops = [m.index for m in emcy if m.code == EmcyCode.BOTTLE_DROPPED]
+        if drops:
+            h = h.copy()
+            h[max(0, min(drops)):] = self.floor_height_m
+        return h
 
     def summary(self, trace: Trace) -> dict[str, float]:
         return {"final_bottle_height_m": float(costs.bottle_height(trace, self.robot)[-1])} if len(trace) else {}

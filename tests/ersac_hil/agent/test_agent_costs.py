@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.agent import costs
 from ersac_hil.agent.policies import LiftingPolicy
-from ersac_hil.agent.tasks import BracingTask, LiftingTask
+from ersac_hil.agent.tasks import BracingTask, EmcyMark, LiftingTask
 from ersac_hil.agent.robot import UBOT
 from ersac_hil.agent.telemetry import JOINTS, STATUS_DEVICES, Trace
 from protocol.can.objects import EmcyCode, Status
@@ -98,7 +98,23 @@ def test_bottle_height_zero_error_upright_at_goal():
     goal = LiftingPolicy().goal
     pos[:, 3:5] = goal
     pos[:, 5:7] = goal
-    assert costs.h_error_sq(trace(n, position=pos), 1.2) == pytest.approx(0.0, abs=1e-12)
+    tr = trace(n, position=pos)
+    assert costs.h_error_sq(costs.bottle_height(tr), 1.2, DT) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_dropped_bottle_lies_on_the_floor_from_its_emcy_on():
+    n = 100
+    pos = np.zeros((n, 7))
+    goal = LiftingPolicy().goal
+    pos[:, 3:5] = goal
+    pos[:, 5:7] = goal
+    tr = trace(n, position=pos)  # the hands stay at the goal height
+    task = LiftingTask()
+    held = task.cost_terms(tr)["h_error_sq"]
+    dropped = task.cost_terms(tr, [EmcyMark(EmcyCode.FALLEN, 10), EmcyMark(EmcyCode.BOTTLE_DROPPED, 60),
+                                   EmcyMark(EmcyCode.BOTTLE_DROPPED, 61)])["h_error_sq"]
+    assert held == pytest.approx(0.0, abs=1e-12)
+    assert dropped == pytest.approx((1.2 - task.floor_height_m) ** 2 * 40 * DT)
 
 
 def test_summary_figures_are_finite_and_named():

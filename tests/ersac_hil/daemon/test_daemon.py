@@ -27,15 +27,26 @@ ROOT = HERE.parents[2]
 def test_config_defaults_file_and_flags(tmp_path):
     path = tmp_path / "d.toml"
     path.write_text('robot = "ubot9"\nkappa = 1.5\nepisodes = 30\nzenoh = "tcp/127.0.0.1:7999"\n'
-                    'theta0 = [0.2]\n[weights]\ndamage = 20.0\n')
+                    'theta0 = [0.35]\n[weights]\ndamage = 20.0\n')
     config = merge(load_toml(path), {"kappa": 2.0, "weights": {"arm_power": 1.0}, "task": None})
     assert config.robot == "ubot9" and config.kappa == 2.0 and config.episodes == 30  # flags win
-    assert config.zenoh == ("tcp/127.0.0.1:7999",) and config.theta0 == (0.2,)
+    assert config.zenoh == ("tcp/127.0.0.1:7999",) and config.theta0 == (0.35,)
     assert config.weights == {"damage": 20.0, "body_acc_sq": 0.1, "arm_power": 1.0}
-    assert config.sigma == (0.1,) and config.task == "bracing"
+    assert config.sigma == (0.05,) and config.task == "bracing"
     assert {"kappa", "weights", "robot", "theta0"} <= config.explicit and "sigma" not in config.explicit
     lifting = DaemonConfig(robot="r", task="lifting")
     assert len(lifting.theta0) == 7 and len(lifting.sigma) == 7
+
+
+def test_the_papers_settings_are_the_defaults_per_task():
+    bracing = DaemonConfig(robot="r")
+    assert (bracing.sigma, bracing.eta, bracing.epsilon, bracing.lr_range) == ((0.05,), 0.7, 0.2, (0.01, 0.5))
+    assert bracing.episodes_or_default == 45 and bracing.theta0[0] < 0.5  # from a low stiffness
+    lifting = DaemonConfig(robot="r", task="lifting")
+    assert lifting.sigma == (0.075,) * 7 and lifting.eta == 0.5 and lifting.lr_range == (0.01, 0.5)
+    assert lifting.epsilon == pytest.approx(3.5 * 0.075) and lifting.episodes_or_default == 30
+    given = DaemonConfig(robot="r", task="lifting", eta=0.2, epsilon=0.3, episodes=5)
+    assert (given.eta, given.epsilon, given.episodes_or_default) == (0.2, 0.3, 5)
 
 
 @pytest.mark.parametrize("text, match", [
@@ -167,6 +178,7 @@ def test_an_agent_refusing_everything_fails_the_run(router, agent_factory, daemo
 def _daemon_cmd(router, db: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "ersac_hil.cli", "daemon", "--robot", "res", "--zenoh", router.endpoint,
             "--db", str(db), "--episodes", "14", "--seed", "21", "--kappa", "1.5",
+            "--theta0", "0.5", "--sigma", "0.1",  # perturbations reach the agent's refusal above 0.6
             "--backoff", "0.05,0.2", *extra]
 
 
