@@ -1,13 +1,17 @@
-"""Loopback-only Zenoh sessions: config builder, session opener, embedded router.
+"""Zenoh sessions: one configuration resolver, a checked session opener, an embedded router.
 
-Every session this project opens goes through :func:`make_config` and :func:`open_session`:
+Every session this project opens goes through :func:`resolve_config` (command lines: a Zenoh
+json5 file ``--zenoh-config``, endpoints ``--zenoh``, ``--insecure``) or :func:`make_config`
+(code and tests), then :func:`open_session`, which enforces the rules:
 
 * explicit endpoints only: ``listen/endpoints`` is always set (Zenoh's default listener is
-  ``tcp/[::]:0`` on every interface) and every endpoint must be ``tcp/<IPv4 loopback>:PORT``;
-* multicast scouting off, gossip scouting off unless asked for, no scouting delay (the
-  default 500 ms delay only waits for multicast replies we never send);
-* :func:`open_session` refuses any config that breaks these rules, including a bare
-  ``zenoh.Config()``.
+  ``tcp/[::]:0`` on every interface);
+* an endpoint off loopback must be secured (``tls/`` or ``quic/``: TLS, with the certificates
+  of the json5 file); a plain one is refused unless the user says ``insecure``;
+* multicast scouting off unless a config file turns it on *and* ``insecure`` is given; gossip
+  scouting off unless asked for; no scouting delay (the default 500 ms only waits for
+  multicast replies we never send);
+* a bare ``zenoh.Config()`` is refused.
 
 Typical use::
 
@@ -20,20 +24,30 @@ A router for other processes (CLI): ``EmbeddedRouter(port=7447).start().wait()``
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 import json
+import os
 import re
 import socket
 import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, Self
 
 import zenoh
 
 __all__ = [
     "MODES",
+    "DEFAULT_ENDPOINT",
+    "SECURE_PROTOCOLS",
+    "ZenohOptions",
+    "add_zenoh_arguments",
+    "zenoh_options",
+    "resolve_config",
+    "is_loopback",
     "ZenohConfigError",
     "EndpointError",
     "ZenohSessionError",
@@ -50,7 +64,13 @@ __all__ = [
 
 #: Zenoh session modes.
 MODES: tuple[str, ...] = ("router", "peer", "client")
-_ENDPOINT = re.compile(r"tcp/(?P<host>[^/:?#\[\]]+):(?P<port>[0-9]{1,5})")
+#: Where clients connect and the router listens unless told otherwise.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: Link protocols that are encrypted and authenticated (TLS); fine off loopback.
+SECURE_PROTOCOLS: tuple[str, ...] = ("tls", "quic")
+_ENDPOINT = re.compile(
+    r"(?P<proto>[a-z][a-z0-9-]*)/(?:\[(?P<v6>[0-9A-Fa-f:.]+)\]|(?P<host>[^/:?#\[\]\s]+)):(?P<port>[0-9]{1,5})"
+    r"(?P<rest>[?#][^\s]*)?")
 #: Config sections only make_config may set.
 _PROTECTED = ("mode", "listen", "connect", "scouting")
 
@@ -60,46 +80,56 @@ class ZenohConfigError(ValueError):
 
 
 class EndpointError(ZenohConfigError):
-    """An endpoint that is not ``tcp/<IPv4 loopback>:PORT``."""
+    """A malformed endpoint, or one off loopback that is not secured (without ``insecure``)."""
 
 
 class ZenohSessionError(RuntimeError):
     """Zenoh could not open a session (port in use, no router to connect to...)."""
 
 
-def loopback_endpoint(port: int, host: str = "127.0.0.1") -> str:
-    """``tcp/127.0.0.1:<port>``, checked."""
-    return check_endpoint(f"tcp/{host}:{port}")
+def loopback_endpoint(port: int, host: str = "127.0.0.1", protocol: str = "tcp") -> str:
+    """``tcp/127.0.0.1:<port>`` (or another loopback host / protocol), checked."""
+    endpoint = check_endpoint(f"{protocol}/{host}:{port}")
+    if not is_loopback(endpoint):
+        raise EndpointError(f"{host} is not a loopback address")
+    return endpoint
 
 
-def check_endpoint(endpoint: Any) -> str:
-    """Return ``endpoint`` if it is ``tcp/<IPv4 loopback>:<1..65535>``.
-
-    Raises:
-        EndpointError: anything else (other protocol, IPv6, host name, wildcard address,
-            port 0, endpoint metadata or configuration after ``?``/``#``).
-    """
+def _parse(endpoint: Any) -> re.Match[str]:
     if not isinstance(endpoint, str):
         raise EndpointError(f"endpoint must be a string, got {type(endpoint).__name__}")
     match = _ENDPOINT.fullmatch(endpoint)
-    if match is None:
+    if match is None or not 1 <= int(match["port"]) <= 65535:
         raise EndpointError(
-            f"endpoint {endpoint[:120]!r} is not of the form tcp/127.0.0.1:PORT "
-            "(only TCP over IPv4 loopback, no metadata)"
-        )
-    host, port = match["host"], int(match["port"])
+            f"endpoint {endpoint[:120]!r} is not of the form PROTOCOL/HOST:PORT with a port in "
+            "1..65535 (e.g. tcp/127.0.0.1:7447, tls/192.0.2.10:7447, tls/[::1]:7447)")
+    return match
+
+
+def is_loopback(endpoint: str) -> bool:
+    """Whether ``endpoint`` stays on this machine: a literal loopback address (127.0.0.0/8,
+    ``::1``). Host names are not (``localhost`` may resolve anywhere), nor wildcards."""
+    match = _parse(endpoint)
     try:
-        address = ipaddress.IPv4Address(host)
+        return ipaddress.ip_address(match["v6"] or match["host"]).is_loopback
     except ValueError:
-        raise EndpointError(
-            f"endpoint {endpoint!r}: host {host!r} is not an IPv4 address (names such as "
-            "'localhost' may resolve to non-loopback or IPv6 addresses)"
-        ) from None
-    if not address.is_loopback:
-        raise EndpointError(f"endpoint {endpoint!r}: {host} is not a loopback address")
-    if not 1 <= port <= 65535:
-        raise EndpointError(f"endpoint {endpoint!r}: port must be in 1..65535")
-    return endpoint
+        return False
+
+
+def check_endpoint(endpoint: Any, *, insecure: bool = False) -> str:
+    """Return ``endpoint`` if it is well formed and either on loopback or secured (``tls/``,
+    ``quic/``); a plain endpoint off loopback only with ``insecure``.
+
+    Raises:
+        EndpointError: malformed, or unsecured off loopback without ``insecure``.
+    """
+    match = _parse(endpoint)
+    if is_loopback(endpoint) or match["proto"] in SECURE_PROTOCOLS or insecure:
+        return endpoint
+    secured = f"tls/{match['host'] or '[' + match['v6'] + ']'}:{match['port']}"
+    raise EndpointError(
+        f"endpoint {endpoint!r} is neither on loopback nor secured: use {secured} with a TLS config "
+        "(--zenoh-config FILE; ersac-hil certs init makes one per role), or say --insecure")
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:
@@ -120,14 +150,15 @@ def make_config(
     connect_timeout_s: float | None = None,
     gossip: bool = False,
     extra: Mapping[str, Any] | None = None,
+    insecure: bool = False,
 ) -> zenoh.Config:
-    """Build a loopback-only :class:`zenoh.Config`.
+    """Build a :class:`zenoh.Config` in code (command lines use :func:`resolve_config`).
 
     Args:
         mode: ``"router"`` (needs ``listen``), ``"peer"`` or ``"client"`` (needs ``connect``,
             cannot ``listen``).
-        listen: endpoints to listen on, each ``tcp/127.0.0.1:PORT``.
-        connect: endpoints to connect to, each ``tcp/127.0.0.1:PORT``.
+        listen: endpoints to listen on, e.g. ``tcp/127.0.0.1:PORT``.
+        connect: endpoints to connect to (:func:`check_endpoint`).
         connect_timeout_s: how long ``open`` may try the connect endpoints (Zenoh default
             if ``None``; clients fail immediately when nothing listens).
         gossip: enable gossip scouting (only over established links; off by default so
@@ -135,15 +166,16 @@ def make_config(
         extra: further config values by slash path, e.g.
             ``{"transport/auth/usrpwd/user": "agent"}``; values are JSON-encoded. The
             ``mode``, ``listen``, ``connect`` and ``scouting`` sections are refused.
+        insecure: allow plain endpoints off loopback.
 
     Raises:
         ZenohConfigError: unknown mode, missing endpoints, protected ``extra`` keys.
-        EndpointError: a non-loopback endpoint.
+        EndpointError: a malformed endpoint, or an unsecured one off loopback.
     """
     if mode not in MODES:
         raise ZenohConfigError(f"mode {mode!r} is not one of {list(MODES)}")
-    listen_eps = [check_endpoint(ep) for ep in _as_list(listen, "listen")]
-    connect_eps = [check_endpoint(ep) for ep in _as_list(connect, "connect")]
+    listen_eps = [check_endpoint(ep, insecure=insecure) for ep in _as_list(listen, "listen")]
+    connect_eps = [check_endpoint(ep, insecure=insecure) for ep in _as_list(connect, "connect")]
     if mode == "router" and not listen_eps:
         raise ZenohConfigError("a router needs at least one listen endpoint")
     if mode == "client":
@@ -182,11 +214,12 @@ def _json_at(config: zenoh.Config, key: str) -> Any:
     return json.loads(config.get_json(key))
 
 
-def check_config(config: zenoh.Config) -> None:
-    """Refuse a config that is not loopback-only and multicast-free.
+def check_config(config: zenoh.Config, *, insecure: bool = False) -> None:
+    """Refuse a config that could leave this machine unsecured or listens by default.
 
-    Checks: mode set, multicast scouting explicitly off, ``listen/endpoints`` and
-    ``connect/endpoints`` explicit lists of loopback endpoints.
+    Checks: mode set; ``listen/endpoints`` and ``connect/endpoints`` explicit lists whose
+    endpoints are on loopback or secured (:func:`check_endpoint`); multicast scouting
+    explicitly off (on only with ``insecure``).
 
     Raises:
         ZenohConfigError, EndpointError.
@@ -196,8 +229,10 @@ def check_config(config: zenoh.Config) -> None:
     mode = _json_at(config, "mode")
     if mode not in MODES:
         raise ZenohConfigError(f"config mode must be set explicitly to one of {list(MODES)}")
-    if _json_at(config, "scouting/multicast/enabled") is not False:
-        raise ZenohConfigError("multicast scouting must be disabled explicitly")
+    multicast = _json_at(config, "scouting/multicast/enabled")
+    if multicast is not False and not (multicast is True and insecure):
+        raise ZenohConfigError("multicast scouting must be disabled explicitly "
+                               "(it is only allowed on with --insecure)")
     for section in ("listen", "connect"):
         endpoints = _json_at(config, f"{section}/endpoints")
         if not isinstance(endpoints, list):
@@ -205,17 +240,18 @@ def check_config(config: zenoh.Config) -> None:
                 f"{section}/endpoints must be an explicit list (the default listener is tcp/[::]:0)"
             )
         for ep in endpoints:
-            check_endpoint(ep)
+            check_endpoint(ep, insecure=insecure)
 
 
-def open_session(config: zenoh.Config) -> zenoh.Session:
+def open_session(config: zenoh.Config, *, insecure: bool = False) -> zenoh.Session:
     """Check ``config`` (:func:`check_config`) and open a session. The caller closes it.
 
     Raises:
-        ZenohConfigError: the config is not loopback-only.
-        ZenohSessionError: Zenoh failed to open (port in use, nothing to connect to...).
+        ZenohConfigError: the config breaks a rule of :func:`check_config`.
+        ZenohSessionError: Zenoh failed to open (port in use, nothing to connect to, TLS
+            handshake refused...).
     """
-    check_config(config)
+    check_config(config, insecure=insecure)
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
@@ -223,11 +259,128 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
         raise ZenohSessionError(f"cannot open a zenoh session on {endpoints}: {exc}") from exc
 
 
+# --------------------------------------------------------------------------- command lines
+
+
+@dataclass(frozen=True)
+class ZenohOptions:
+    """What a command line says about its Zenoh session.
+
+    Attributes:
+        endpoints: ``--zenoh`` (repeatable): where a client or peer connects, where a router
+            listens. Empty: the config file's, else :data:`DEFAULT_ENDPOINT`.
+        config_file: ``--zenoh-config``: a Zenoh json5 configuration (the format of ``zenohd``
+            and every Zenoh client: TLS certificates, access control, timeouts...).
+        insecure: ``--insecure``: allow plain endpoints off loopback (and multicast scouting
+            if the file turns it on).
+    """
+
+    endpoints: tuple[str, ...] = ()
+    config_file: str | None = None
+    insecure: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.endpoints, str):
+            raise ZenohConfigError("endpoints must be a sequence of endpoints, not a single string")
+        object.__setattr__(self, "endpoints", tuple(self.endpoints))
+        if self.config_file is not None:
+            object.__setattr__(self, "config_file", os.fspath(self.config_file))
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, *, listens: bool = False) -> None:
+    """``--zenoh ENDPOINT`` (repeatable), ``--zenoh-config FILE``, ``--insecure``."""
+    where = "listen on" if listens else "connect to"
+    parser.add_argument(
+        "--zenoh", action="append", metavar="ENDPOINT",
+        help=f"endpoint to {where}, repeatable (default: the --zenoh-config file's, else "
+             f"{DEFAULT_ENDPOINT}); off loopback only tls/HOST:PORT unless --insecure")
+    parser.add_argument(
+        "--zenoh-config", dest="zenoh_config", metavar="FILE",
+        help="Zenoh json5 configuration (TLS certificates, access control...); "
+             "ersac-hil certs init writes one per role")
+    parser.add_argument(
+        "--insecure", action="store_true",
+        help="allow plain (unencrypted, unauthenticated) endpoints off loopback")
+
+
+def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    """The :class:`ZenohOptions` of parsed :func:`add_zenoh_arguments` flags."""
+    return ZenohOptions(tuple(args.zenoh or ()), args.zenoh_config, bool(args.insecure))
+
+
+def _file_endpoints(config: zenoh.Config, section: str, mode: str) -> list[str] | None:
+    """A file's explicit endpoint list for ``mode`` (a list, or a per-mode map), else None."""
+    value = _json_at(config, f"{section}/endpoints")
+    if isinstance(value, dict):
+        value = value.get(mode)
+    return list(value) if isinstance(value, list) else None
+
+
+def resolve_config(
+    options: ZenohOptions = ZenohOptions(),
+    *,
+    mode: str = "client",
+    listen: Sequence[str] = (),
+    connect_timeout_s: float | None = None,
+) -> zenoh.Config:
+    """The session configuration of a command: the one place every command resolves it.
+
+    Precedence (python-can style): explicit arguments, then the json5 file, then defaults.
+
+    * ``mode`` is the command's (a router is a router, whatever the file says);
+    * endpoints: ``options.endpoints`` (a router listens on them, others connect to them),
+      else the file's, else :data:`DEFAULT_ENDPOINT`; a client never listens; ``listen``
+      gives a peer's listeners;
+    * scouting: multicast off and gossip off unless the file sets them, no scouting delay;
+    * everything else (TLS certificates, access control, timeouts) comes from the file.
+
+    The result passes :func:`check_config` with ``options.insecure``.
+
+    Raises:
+        ZenohConfigError: unreadable or invalid file, unknown mode, insecure endpoints.
+    """
+    if mode not in MODES:
+        raise ZenohConfigError(f"mode {mode!r} is not one of {list(MODES)}")
+    if options.config_file is None:
+        config = zenoh.Config()
+    else:
+        path = options.config_file
+        if not os.path.isfile(path):
+            raise ZenohConfigError(f"zenoh config {path}: no such file")
+        try:
+            config = zenoh.Config.from_file(path)
+        except (zenoh.ZError, ValueError) as exc:
+            raise ZenohConfigError(f"zenoh config {path} is not a valid Zenoh json5 config: {exc}") from None
+    given = list(options.endpoints)
+    file_listen = _file_endpoints(config, "listen", mode)
+    file_connect = _file_endpoints(config, "connect", mode)
+    if mode == "router":
+        listen_eps = given or file_listen or [DEFAULT_ENDPOINT]
+        connect_eps = file_connect or []
+    else:
+        connect_eps = given or file_connect or [DEFAULT_ENDPOINT]
+        listen_eps = [] if mode == "client" else list(listen) or file_listen or []
+    try:
+        config.insert_json5("mode", json.dumps(mode))
+        config.insert_json5("listen/endpoints", json.dumps(listen_eps))
+        config.insert_json5("connect/endpoints", json.dumps(connect_eps))
+        for key, default in (("scouting/multicast/enabled", False), ("scouting/gossip/enabled", False),
+                             ("scouting/delay", 0)):
+            if _json_at(config, key) is None:
+                config.insert_json5(key, json.dumps(default))
+        if connect_timeout_s is not None:
+            config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(f"invalid zenoh endpoints {listen_eps + connect_eps}: {exc}") from None
+    check_config(config, insecure=options.insecure)
+    return config
+
+
 @contextmanager
-def session_scope(config: zenoh.Config) -> Iterator[zenoh.Session]:
+def session_scope(config: zenoh.Config, *, insecure: bool = False) -> Iterator[zenoh.Session]:
     """Open a session for the ``with`` block and close it on exit (closing undeclares every
     subscriber, queryable and token it declared)."""
-    session = open_session(config)
+    session = open_session(config, insecure=insecure)
     try:
         yield session
     finally:
@@ -251,20 +404,30 @@ def wait_for_match(entity: Any, timeout_s: float = 5.0, poll_s: float = 0.002) -
 
 
 class EmbeddedRouter:
-    """A Zenoh router inside this Python process, listening on ``tcp/127.0.0.1:PORT``.
+    """A Zenoh router inside this Python process.
 
     Args:
-        port: TCP port; ``None`` picks a free one (retried if another process grabs it).
+        port: TCP port on 127.0.0.1; ``None`` picks a free one (retried if another process
+            grabs it).
         extra: extra config values (see :func:`make_config`), e.g. authentication.
+        config: a complete router config instead (``resolve_config(..., mode="router")``:
+            TLS listeners, access control); ``port`` and ``extra`` must not be given.
+        insecure: passed to :func:`open_session` with ``config``.
 
     Use as a context manager, or ``start()`` / ``close()``; ``wait()`` blocks (CLI).
     """
 
-    def __init__(self, port: int | None = None, *, extra: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, port: int | None = None, *, extra: Mapping[str, Any] | None = None,
+                 config: zenoh.Config | None = None, insecure: bool = False) -> None:
         if port is not None:
             loopback_endpoint(port)
+        if config is not None and (port is not None or extra):
+            raise ZenohConfigError("give the router a config, or a port and extra values, not both")
         self._requested = port
         self._extra = dict(extra or {})
+        self._config = config
+        self._insecure = insecure
+        self._endpoint: str | None = None
         self._port: int | None = None
         self._session: zenoh.Session | None = None
         self._stopped = threading.Event()
@@ -277,6 +440,12 @@ class EmbeddedRouter:
         """
         if self._session is not None:
             return self
+        if self._config is not None:
+            self._session = open_session(self._config, insecure=self._insecure)
+            self._endpoint = _json_at(self._config, "listen/endpoints")[0]
+            self._port = int(_parse(self._endpoint)["port"])
+            self._stopped.clear()
+            return self
         tries = 1 if self._requested is not None else max(1, attempts)
         for attempt in range(tries):
             port = self._requested if self._requested is not None else free_tcp_port()
@@ -288,6 +457,7 @@ class EmbeddedRouter:
                     raise
                 continue
             self._port = port
+            self._endpoint = loopback_endpoint(port)
             self._stopped.clear()
             return self
         raise AssertionError("unreachable")  # pragma: no cover
@@ -306,8 +476,10 @@ class EmbeddedRouter:
 
     @property
     def endpoint(self) -> str:
-        """``tcp/127.0.0.1:<port>``."""
-        return loopback_endpoint(self.port)
+        """``tcp/127.0.0.1:<port>`` (with a config: its first listen endpoint)."""
+        if self._endpoint is None:
+            raise ZenohSessionError("router not started")
+        return self._endpoint
 
     @property
     def session(self) -> zenoh.Session:
@@ -348,5 +520,5 @@ class EmbeddedRouter:
         self.close()
 
     def __repr__(self) -> str:
-        state = f"on {self.endpoint}" if self._port is not None and self.running else "stopped"
+        state = f"on {self.endpoint}" if self._endpoint is not None and self.running else "stopped"
         return f"EmbeddedRouter({state})"

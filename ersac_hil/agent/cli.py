@@ -14,8 +14,8 @@ def register(subparsers) -> None:
     p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")
     p.add_argument("--bus-channel", help="vcan0 / can0 / ws://127.0.0.1:PORT/ ...")
     p.add_argument("--bitrate", type=int, default=None)
-    p.add_argument("--zenoh", action="append", required=True, metavar="ENDPOINT",
-                   help="tcp/127.0.0.1:PORT to connect to (repeatable)")
+    from ersac_hil.zenoh_session import add_zenoh_arguments
+    add_zenoh_arguments(p)
     p.add_argument("--mode", choices=("client", "peer"), default="client",
                    help="zenoh session mode (default client, through a router)")
     p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
@@ -39,7 +39,12 @@ def _run(args: argparse.Namespace) -> int:
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
                            realtime=args.realtime)
         config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
-                             zenoh_connect=tuple(args.zenoh), zenoh_mode=args.mode, timing=timing)
+                             zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
+                             zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
+                             timing=timing)
+        from ersac_hil.zenoh_session import ZenohOptions, resolve_config
+        resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),
+                       mode=config.zenoh_mode)  # refuse a bad or insecure session config up front
         service = AgentService(config)
     except (BusConfigError, ValueError) as exc:
         print(f"ersac-hil agent: {exc}")

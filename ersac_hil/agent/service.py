@@ -28,7 +28,7 @@ import zenoh
 from ersac_hil.agent.bus import AgentBus, BusTiming
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
-from ersac_hil.zenoh_session import make_config, open_session
+from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
 from protocol.zenoh import (EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, InvalidField,
                             KeySpace, PayloadError)
@@ -43,7 +43,9 @@ class AgentConfig:
         robot, prefix: the key space (``KeySpace(robot, prefix)``).
         bus: the CAN bus. timing: SYNC period, deadline, heartbeat timeout, real-time mode.
         zenoh_mode: ``client`` (through a router) or ``peer``; zenoh_connect: endpoints
-            ``tcp/127.0.0.1:PORT``; zenoh_listen: peer mode only.
+            (default: the config file's, else ``tcp/127.0.0.1:7447``); zenoh_listen: peer mode
+            only; zenoh_config: a Zenoh json5 file (TLS certificates of the agent role...);
+            zenoh_insecure: allow plain endpoints off loopback (``resolve_config``).
         episode: what episodes do (policies, LQR weights, cost weights).
     """
     robot: str
@@ -51,6 +53,8 @@ class AgentConfig:
     zenoh_connect: tuple[str, ...]
     zenoh_mode: str = "client"
     zenoh_listen: tuple[str, ...] = ()
+    zenoh_config: str | None = None
+    zenoh_insecure: bool = False
     prefix: str = "ersac"
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
@@ -85,8 +89,9 @@ class AgentService:
         self.runner = EpisodeRunner(self.bus, cfg.episode, go=self._wait_go)
         for task in cfg.episode.tasks:
             self.runner.design(task)  # LQR gains once, before the first request
-        zconf = make_config(cfg.zenoh_mode, connect=cfg.zenoh_connect, listen=cfg.zenoh_listen)
-        self.session = open_session(zconf)
+        options = ZenohOptions(cfg.zenoh_connect, cfg.zenoh_config, cfg.zenoh_insecure)
+        zconf = resolve_config(options, mode=cfg.zenoh_mode, listen=cfg.zenoh_listen)
+        self.session = open_session(zconf, insecure=cfg.zenoh_insecure)
         self._worker = threading.Thread(target=self._work_loop, name="agent-episodes", daemon=True)
         self._worker.start()
         s = self.session

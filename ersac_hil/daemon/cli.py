@@ -1,6 +1,8 @@
 """``ersac-hil`` subcommands of the daemon package (picked up by ``ersac_hil.cli``).
 
-Services: ``daemon`` (the learner), ``router`` (embedded Zenoh router on 127.0.0.1).
+Services: ``daemon`` (the learner), ``router`` (Zenoh router, loopback unless configured).
+Every command that opens a Zenoh session takes ``--zenoh ENDPOINT``, ``--zenoh-config FILE``
+and ``--insecure`` (``ersac_hil.zenoh_session.resolve_config``).
 Clients (Zenoh client sessions): ``state``, ``kappa get|set``, ``weights get|set``,
 ``critic``, ``select``. Offline: ``report``.
 
@@ -16,8 +18,6 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["register"]
-
-_DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -55,7 +55,8 @@ def _daemon(args: argparse.Namespace) -> int:
         "robot": args.robot, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
         "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
         "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
-        "zenoh": tuple(args.zenoh) if args.zenoh else None,
+        "zenoh": tuple(args.zenoh) if args.zenoh else None, "zenoh_config": args.zenoh_config,
+        "insecure": True if args.insecure else None,
         "db": Path(args.db) if args.db else None, "episode_timeout_s": args.episode_timeout,
         "max_attempts": args.max_attempts, "backoff_s": args.backoff, "agent_wait_s": args.agent_wait,
         "resume": "new" if args.new else args.resume, "linger": True if args.linger else None,
@@ -73,26 +74,31 @@ def _daemon(args: argparse.Namespace) -> int:
 
 
 class _RouterService:
-    def __init__(self, port: int) -> None:
-        self.port = port
-        self.router = None
+    def __init__(self, args: argparse.Namespace) -> None:
+        from ersac_hil.zenoh_session import EmbeddedRouter, resolve_config, zenoh_options
+        options = zenoh_options(args)
+        if options.endpoints or options.config_file:
+            self.router = EmbeddedRouter(config=resolve_config(options, mode="router"),
+                                         insecure=options.insecure)
+        else:
+            self.router = EmbeddedRouter(port=args.port or None)
 
     def start(self) -> None:
-        from ersac_hil.zenoh_session import EmbeddedRouter
-        self.router = EmbeddedRouter(port=self.port or None).start()
+        self.router.start()
         print(f"Zenoh router: {self.router.endpoint}", flush=True)
 
     def stop(self) -> None:
-        if self.router is not None:
-            self.router.close()
+        self.router.close()
         print("Zenoh router stopped", flush=True)
 
 
 def _router(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import serve
-    from ersac_hil.zenoh_session import ZenohSessionError
+    from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError
     try:
-        return serve(_RouterService(args.port))
+        return serve(_RouterService(args))
+    except ZenohConfigError as exc:
+        return _fail(str(exc))
     except ZenohSessionError as exc:
         return _fail(str(exc), 1)
 
@@ -102,13 +108,13 @@ def _client_call(args: argparse.Namespace, action, render=None) -> int:  # noqa:
     """Run ``action(client)``; print ``render(reply)`` (default: human text, or the reply's
     JSON with ``--json``). Maps failures to exit codes 1 (refused / no answer) and 2."""
     from protocol.zenoh import KeySpace, PayloadError
-    from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError
+    from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError, zenoh_options
 
     from .clients import ClientError, LearnerClient, RequestRefused
 
     try:
         keys = KeySpace(args.robot, args.prefix)
-        with LearnerClient(keys, args.zenoh or [_DEFAULT_ENDPOINT], args.timeout) as client:
+        with LearnerClient(keys, zenoh_options(args), args.timeout) as client:
             reply = action(client)
     except (PayloadError, ZenohConfigError, ValueError) as exc:
         return _fail(str(exc))
@@ -203,16 +209,17 @@ def _report(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- parsers
 def _client_options(p: argparse.ArgumentParser) -> None:
+    from ersac_hil.zenoh_session import add_zenoh_arguments
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
     p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
-    p.add_argument("--zenoh", action="append", metavar="ENDPOINT",
-                   help=f"router endpoint to connect to (default {_DEFAULT_ENDPOINT}); repeatable")
+    add_zenoh_arguments(p)
     p.add_argument("--timeout", type=float, default=10.0, help="seconds per request (default 10)")
     p.add_argument("--json", action="store_true", help="print the reply payload as JSON")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this package's subcommands to the ``ersac-hil`` parser."""
+    from ersac_hil.zenoh_session import add_zenoh_arguments
     p = sub.add_parser("daemon", help="the learner daemon (ERSAC against the agent's episode/run)",
                        description="Learn with ERSAC by asking the robot-side agent to run episodes. "
                                    "Flags override the --config TOML file.")
@@ -230,8 +237,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr-range", dest="lr_range", type=_floats, help="clip of eta/r~ (default 0.01,0.5)")
     p.add_argument("--weight", action="append", type=_weight, metavar="NAME=VALUE",
                    help="cost-term weight (repeatable; default: the task's)")
-    p.add_argument("--zenoh", action="append", metavar="ENDPOINT",
-                   help=f"router endpoint (default {_DEFAULT_ENDPOINT}); repeatable")
+    add_zenoh_arguments(p)
     p.add_argument("--db", help="SQLite store (default ersac.db)")
     p.add_argument("--episode-timeout", dest="episode_timeout", type=float,
                    help="seconds one episode may take (default 60)")
@@ -248,8 +254,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_daemon)
 
     if "router" not in sub.choices:
-        p = sub.add_parser("router", help="embedded Zenoh router on 127.0.0.1")
-        p.add_argument("--port", type=int, default=7447, help="TCP port (default 7447; 0 = a free one)")
+        p = sub.add_parser("router", help="Zenoh router (loopback by default; TLS + access control "
+                                          "with --zenoh-config)")
+        p.add_argument("--port", type=int, default=7447,
+                       help="listen on tcp/127.0.0.1:PORT (default 7447; 0 = a free one) "
+                            "unless --zenoh or --zenoh-config say where")
+        add_zenoh_arguments(p, listens=True)
         p.set_defaults(func=_router)
 
     p = sub.add_parser("state", help="the learner's state (theta, kappa, weights, episodes)")

@@ -15,7 +15,7 @@ from typing import TypeVar
 
 import zenoh
 
-from ersac_hil.zenoh_session import make_config, open_session
+from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.zenoh import (
     CriticQuery,
     CriticReply,
@@ -58,14 +58,17 @@ class LearnerClient:
 
     Args:
         keys: the robot's key space.
-        endpoints: Zenoh endpoints (``tcp/127.0.0.1:PORT``) to connect to.
+        endpoints: Zenoh endpoints to connect to, or the command line's ``ZenohOptions``
+            (endpoints, json5 config file with the certificates of a role, insecure).
         timeout_s: per-request timeout.
     """
 
-    def __init__(self, keys: KeySpace, endpoints: Sequence[str], timeout_s: float = 10.0) -> None:
+    def __init__(self, keys: KeySpace, endpoints: Sequence[str] | ZenohOptions,
+                 timeout_s: float = 10.0) -> None:
         self.keys = keys
         self.timeout_s = timeout_s
-        self._session = open_session(make_config("client", connect=list(endpoints)))
+        options = endpoints if isinstance(endpoints, ZenohOptions) else ZenohOptions(tuple(endpoints))
+        self._session = open_session(resolve_config(options), insecure=options.insecure)
 
     def close(self) -> None:
         self._session.close()

@@ -16,7 +16,8 @@ optional ``[weights]`` table::
     task = "bracing"
     kappa = 2.0
     episodes = 45
-    zenoh = ["tcp/127.0.0.1:7447"]
+    zenoh = ["tls/192.0.2.10:7447"]
+    zenoh_config = "/etc/ersac-hil/daemon.json5"
     db = "ersac.db"
     [weights]
     damage = 10.0
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import tomllib
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import msgspec
 from msgspec import Meta
@@ -35,6 +36,9 @@ from protocol.zenoh import KAPPA_MAX, KAPPA_MIN, InvalidField, KeySpace, get_tas
 from protocol.zenoh.codec import ID_PATTERN
 from protocol.zenoh.fields import Finite, Name, NonNegative, Positive, Record, converting
 from protocol.zenoh.tasks import TaskName
+
+if TYPE_CHECKING:
+    from ersac_hil.zenoh_session import ZenohOptions
 
 __all__ = [
     "ConfigError",
@@ -120,7 +124,10 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             Each of theta0, sigma, eta, epsilon, lr_range: ``None`` takes the task's paper
             setting (:data:`TASK_DEFAULTS`).
         weights: complete cost-term weights (the task's term names), >= 0.
-        zenoh: Zenoh endpoints to connect to as a client, each ``tcp/127.0.0.1:PORT``.
+        zenoh: Zenoh endpoints to connect to as a client (default: the ``zenoh_config``
+            file's, else ``tcp/127.0.0.1:7447``); off loopback only ``tls/`` unless insecure.
+        zenoh_config: a Zenoh json5 config file (TLS certificates...), ``--zenoh-config``.
+        insecure: allow plain endpoints off loopback (``--insecure``).
         db: SQLite store path.
         episode_timeout_s: how long one ``episode/run`` query may take.
         max_attempts: attempts of one request (faults, timeouts, refusals) before the run
@@ -147,7 +154,9 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     lr_range: tuple[Positive, Positive] | None = None
     weights: dict[Name, NonNegative] | None = None
     prefix: str = "ersac"
-    zenoh: Annotated[tuple[str, ...], Meta(min_length=1)] = ("tcp/127.0.0.1:7447",)
+    zenoh: tuple[str, ...] = ()
+    zenoh_config: str | None = None
+    insecure: bool = False
     db: str = "ersac.db"
     episode_timeout_s: Seconds = 60.0
     max_attempts: Annotated[int, Meta(ge=1, le=1000)] = 5
@@ -189,10 +198,10 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             spec.check_names(self.weights, "weights", complete=False)
             weights.update(self.weights)
         set_("weights", {k: weights[k] for k in spec.term_names})
-        from ersac_hil.zenoh_session import EndpointError, check_endpoint
+        from ersac_hil.zenoh_session import ZenohConfigError, resolve_config
         try:
-            set_("zenoh", tuple(check_endpoint(e) for e in self.zenoh))
-        except EndpointError as exc:
+            resolve_config(self.zenoh_options)
+        except ZenohConfigError as exc:
             raise InvalidField("zenoh", str(exc)) from None
         if not self.backoff_s[0] <= self.backoff_s[1]:
             raise InvalidField("backoff_s", f"must satisfy 0 < initial <= max, got {self.backoff_s}")
@@ -202,6 +211,12 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     @property
     def episodes_or_default(self) -> int:
         return task_defaults(self.task).episodes if self.episodes is None else self.episodes
+
+    @property
+    def zenoh_options(self) -> ZenohOptions:
+        """The session options (``ersac_hil.zenoh_session.resolve_config``)."""
+        from ersac_hil.zenoh_session import ZenohOptions
+        return ZenohOptions(self.zenoh, self.zenoh_config, self.insecure)
 
     @property
     def keys(self) -> KeySpace:

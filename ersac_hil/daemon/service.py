@@ -35,7 +35,7 @@ from typing import TextIO
 
 import zenoh
 
-from ersac_hil.zenoh_session import make_config, open_session
+from ersac_hil.zenoh_session import open_session, resolve_config
 from protocol.zenoh import EpisodeRequest, EpisodeResult, LearnerEpisode
 
 from .agents import AgentAbsent, AgentLink, Stopped
@@ -96,8 +96,8 @@ class Daemon:
         self.learning = learning = LearningRun(self.store, self.config)
         self.config = learning.config
         self.handlers = ControlHandlers(learning, self._print)
-        self.session = open_session(make_config("client", connect=list(self.config.zenoh),
-                                                connect_timeout_s=10.0))
+        self.session = open_session(resolve_config(self.config.zenoh_options, connect_timeout_s=10.0),
+                                    insecure=self.config.insecure)
         self.agents = AgentLink(self.session, self.keys, self.config.episode_timeout_s, self._stop)
         self.control = ControlPlane(self.session, self.keys, self.handlers)
         run, engine, interrupted = learning.run, learning.engine, learning.interrupted

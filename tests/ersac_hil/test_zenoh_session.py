@@ -1,4 +1,4 @@
-"""Loopback Zenoh sessions with real routers and clients (no mocks).
+"""Zenoh session configuration rules, and loopback sessions with real routers and clients (no mocks).
 
 One embedded router per module; every test opens its own client sessions and closes them
 (and everything they declared) in teardown. Declarations propagate asynchronously through
@@ -6,6 +6,7 @@ the router, so tests wait on matching status instead of sleeping.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import queue
 import threading
@@ -17,16 +18,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.zenoh_session import (
+    DEFAULT_ENDPOINT,
     EmbeddedRouter,
+    ZenohOptions,
     EndpointError,
     ZenohConfigError,
     ZenohSessionError,
     check_config,
     check_endpoint,
     free_tcp_port,
+    is_loopback,
     loopback_endpoint,
     make_config,
     open_session,
+    resolve_config,
     session_scope,
     wait_for_match,
 )
@@ -92,35 +97,120 @@ def test_make_config_is_explicit_and_loopback_only(router):
     check_config(client)
 
 
-@pytest.mark.parametrize(
-    "endpoint",
-    ["tcp/0.0.0.0:7447", "tcp/192.168.1.2:7447", "tcp/10.0.0.1:1", "tcp/224.0.0.224:7446",
-     "tcp/[::]:0", "tcp/[::1]:7447", "tcp/localhost:7447", "udp/127.0.0.1:7447",
-     "tls/127.0.0.1:7447", "tcp/127.0.0.1:0", "tcp/127.0.0.1:65536", "tcp/127.0.0.1",
-     "tcp/127.0.0.1:7447#iface=lo", "tcp/127.0.0.1:7447?prio=1", "tcp/0127.0.0.1:7447",
-     " tcp/127.0.0.1:7447", "", None, 7447],
-)
-def test_non_loopback_endpoints_are_refused(endpoint):
-    with pytest.raises(EndpointError):
+UNSECURED = ["tcp/0.0.0.0:7447", "tcp/192.168.1.2:7447", "tcp/10.0.0.1:1", "tcp/224.0.0.224:7446",
+             "tcp/[::]:7447", "tcp/localhost:7447", "udp/10.0.0.1:7447", "tcp/0127.0.0.1:7447",
+             "ws/198.51.100.7:80"]
+
+
+@pytest.mark.parametrize("endpoint", UNSECURED)
+def test_unsecured_endpoints_off_loopback_are_refused_unless_insecure(endpoint):
+    with pytest.raises(EndpointError, match="--insecure") as info:
         check_endpoint(endpoint)
+    assert "tls/" in str(info.value)
     with pytest.raises(EndpointError):
         make_config("client", connect=[endpoint])
     with pytest.raises(EndpointError):
         make_config("router", listen=[endpoint])
+    assert check_endpoint(endpoint, insecure=True) == endpoint  # checked only, never opened
+    assert not is_loopback(endpoint)
+
+
+@pytest.mark.parametrize(
+    "endpoint",
+    ["tcp/127.0.0.1:7447", "tcp/127.0.0.3:1", "tcp/[::1]:7447", "udp/127.0.0.1:7447",
+     "tls/192.0.2.10:7447", "tls/robot.example:7447", "quic/[2001:db8::1]:7447",
+     "tcp/127.0.0.1:7447#iface=lo", "tls/127.0.0.2:7447?prio=1"],
+)
+def test_loopback_and_secured_endpoints_are_accepted(endpoint):
+    assert check_endpoint(endpoint) == endpoint
+
+
+@pytest.mark.parametrize(
+    "endpoint",
+    ["tcp/127.0.0.1:0", "tcp/127.0.0.1:65536", "tcp/127.0.0.1", "tcp127.0.0.1:7447",
+     " tcp/127.0.0.1:7447", "tcp/127.0.0.1:7447 ", "", None, 7447],
+)
+def test_malformed_endpoints_are_refused_even_insecure(endpoint):
+    with pytest.raises(EndpointError):
+        check_endpoint(endpoint, insecure=True)
 
 
 @settings(max_examples=200)
 @given(st.one_of(
     st.text(max_size=30),
-    st.builds("tcp/{}:{}".format, st.ip_addresses(v=4).map(str), st.integers(0, 70000)),
+    st.builds("{}/{}:{}".format, st.sampled_from(["tcp", "tls", "udp", "quic"]),
+              st.ip_addresses(v=4).map(str), st.integers(0, 70000)),
 ))
-def test_check_endpoint_accepts_only_ipv4_loopback(text):
+def test_accepted_endpoints_are_loopback_or_tls(text):
     try:
         out = check_endpoint(text)
     except EndpointError:
         return
-    host, port = out.removeprefix("tcp/").rsplit(":", 1)
-    assert out == text and host.startswith("127.") and 1 <= int(port) <= 65535
+    proto, _, rest = out.partition("/")
+    assert out == text and (is_loopback(out) or proto in ("tls", "quic"))
+    assert 1 <= int(rest.rsplit(":", 1)[1].split("?")[0].split("#")[0]) <= 65535
+
+
+def _write(tmp_path, name: str, text: str):
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+def test_resolve_config_defaults_flags_and_file(tmp_path):
+    cfg = resolve_config()
+    assert json.loads(cfg.get_json("mode")) == "client"
+    assert json.loads(cfg.get_json("connect/endpoints")) == [DEFAULT_ENDPOINT]
+    assert json.loads(cfg.get_json("listen/endpoints")) == []
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    router = resolve_config(ZenohOptions(("tcp/127.0.0.2:7000",)), mode="router")
+    assert json.loads(router.get_json("listen/endpoints")) == ["tcp/127.0.0.2:7000"]
+    path = _write(tmp_path, "c.json5", """{
+      // a Zenoh json5 file, as zenohd reads it
+      mode: "peer", connect: { endpoints: ["tcp/127.0.0.9:7001"], timeout_ms: 1500 },
+      listen: { endpoints: { router: ["tcp/127.0.0.9:7002"], peer: ["tcp/127.0.0.9:7003"] } },
+    }""")
+    from_file = resolve_config(ZenohOptions(config_file=path))
+    assert json.loads(from_file.get_json("mode")) == "client"  # the command's mode wins
+    assert json.loads(from_file.get_json("connect/endpoints")) == ["tcp/127.0.0.9:7001"]
+    assert json.loads(from_file.get_json("connect/timeout_ms")) == 1500  # the rest is kept
+    assert json.loads(from_file.get_json("listen/endpoints")) == []  # clients never listen
+    flags = resolve_config(ZenohOptions(("tcp/127.0.0.8:7004",), path))
+    assert json.loads(flags.get_json("connect/endpoints")) == ["tcp/127.0.0.8:7004"]  # flags win
+    routed = resolve_config(ZenohOptions(config_file=path), mode="router")
+    assert json.loads(routed.get_json("listen/endpoints")) == ["tcp/127.0.0.9:7002"]
+    peer = resolve_config(ZenohOptions(config_file=path), mode="peer")
+    assert json.loads(peer.get_json("listen/endpoints")) == ["tcp/127.0.0.9:7003"]
+
+
+def test_resolve_config_refusals(tmp_path):
+    with pytest.raises(ZenohConfigError, match="no such file"):
+        resolve_config(ZenohOptions(config_file=str(tmp_path / "missing.json5")))
+    with pytest.raises(ZenohConfigError, match="not a valid Zenoh json5"):
+        resolve_config(ZenohOptions(config_file=_write(tmp_path, "bad.json5", "{ mode: ")))
+    with pytest.raises(EndpointError, match="--insecure"):
+        resolve_config(ZenohOptions(("tcp/192.0.2.1:7447",)))
+    assert resolve_config(ZenohOptions(("tcp/192.0.2.1:7447",), insecure=True))  # built, not opened
+    assert resolve_config(ZenohOptions(("tls/192.0.2.1:7447",)))
+    multicast = _write(tmp_path, "m.json5", "{ scouting: { multicast: { enabled: true } } }")
+    with pytest.raises(ZenohConfigError, match="multicast"):
+        resolve_config(ZenohOptions(config_file=multicast))
+    insecure = resolve_config(ZenohOptions(config_file=multicast, insecure=True))
+    assert json.loads(insecure.get_json("scouting/multicast/enabled")) is True
+    with pytest.raises(ZenohConfigError, match="mode"):
+        resolve_config(mode="broker")
+
+
+def test_every_command_takes_the_zenoh_flags():
+    from ersac_hil.cli import build_parser
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    opening = [name for name, p in sub.choices.items()
+               if any(a.dest == "zenoh" for a in p._actions)]
+    assert {"agent", "daemon", "router", "state", "kappa", "weights", "critic", "select"} <= set(opening)
+    for name in opening:
+        dests = {a.dest for a in sub.choices[name]._actions}
+        assert {"zenoh", "zenoh_config", "insecure"} <= dests, name
 
 
 @pytest.mark.parametrize(
@@ -363,3 +453,19 @@ def test_closing_a_client_withdraws_its_token(router, clients, undeclare):
     finally:
         agent.close()
     assert _until_delete(events)[-1] == (KS.agent_alive, zenoh.SampleKind.DELETE)
+
+
+@pytest.mark.parametrize("argv", [
+    ["state", "--zenoh", "tcp/192.0.2.1:7447"],
+    ["kappa", "set", "1", "--zenoh", "tcp/[::]:7447"],
+    ["router", "--zenoh", "tcp/0.0.0.0:7447"],
+    ["daemon", "--robot", "r", "--zenoh", "udp/198.51.100.1:7447", "--db", "never.db"],
+    ["state", "--zenoh-config", "missing.json5"],
+])
+def test_commands_refuse_unsecured_or_unreadable_session_configs(argv, capsys, tmp_path, monkeypatch):
+    from ersac_hil.cli import main
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert ("--insecure" in err and "tls/" in err) or "no such file" in err
+    assert not (tmp_path / "never.db").exists()  # refused before anything was created
