@@ -12,6 +12,8 @@ it. Backends:
   in-process only);
 * ``remote``: the loopback hub in this process, the simulator (``python -m firmware_sim``) and
   the agent (``ersac-hil agent``) as separate processes, as deployed;
+* ``zenoh``: CAN over Zenoh (``ersac_hil.canbus.zenoh_bus``) through the same embedded router
+  the episode queries use, simulator and agent as separate processes;
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
@@ -77,12 +79,15 @@ def in_process(config: BusConfig, n: int, realtime: bool) -> dict[str, list[Epis
             return run_episodes(session, n)
 
 
-def processes(config: BusConfig, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
-    bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
+def processes(config: BusConfig | None, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
+    """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router)."""
     extra = ["--realtime"] if realtime else []
     procs = []
     try:
         with EmbeddedRouter() as router:
+            if config is None:
+                config = BusConfig("zenoh", f"bench-{uuid.uuid4().hex[:6]}@{router.endpoint}")
+            bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
             sim = subprocess.Popen([sys.executable, "-m", "firmware_sim", *bus_args, *extra],
                                    stdout=subprocess.PIPE, text=True)
             procs.append(sim)
@@ -125,6 +130,7 @@ def main() -> int:
                                  args.episodes, args.realtime))
     with LoopbackHub() as hub:
         report("remote", processes(hub.bus_config, args.episodes, args.realtime))
+    report("zenoh", processes(None, args.episodes, args.realtime))
     status = vcan_status("vcan0")
     if status.available:
         report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime))

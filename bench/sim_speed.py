@@ -10,6 +10,7 @@ synchronous TPDOs.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import threading
@@ -22,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
 from protocol.can import cobid  # noqa: E402
 from protocol.can.bench import BENCH, object_dictionary  # noqa: E402
@@ -73,15 +75,17 @@ def main() -> None:
     sim_physics.report(repeat=2)
     print(f"\nlock-step through the CAN stack ({args.cycles} cycles, 4 RPDOs + SYNC + 13 TPDOs each):")
     print(f"{'backend':<32} {'cycles/s':>9} {'RTF':>6} {'p50 ms':>7} {'p99 ms':>7}")
-    backends: list[tuple[str, object]] = [("virtual", lambda: BusConfig("virtual", "bench-speed"))]
-    backends.append(("remote (loopback hub)", None))
     vc = vcan_status()
-    for name, make in backends:
-        if make is None:
-            with LoopbackHub() as hub:
-                rate, p50, p99 = can_cycles_per_second(hub.bus_config, args.cycles)
-        else:
-            rate, p50, p99 = can_cycles_per_second(make(), args.cycles)
+    for name in ("virtual", "remote (loopback hub)", "zenoh (embedded router)"):
+        with contextlib.ExitStack() as stack:
+            if name == "virtual":
+                config = BusConfig("virtual", "bench-speed")
+            elif name.startswith("remote"):
+                config = stack.enter_context(LoopbackHub()).bus_config
+            else:
+                router = stack.enter_context(EmbeddedRouter())
+                config = BusConfig("zenoh", f"bench-speed@{router.endpoint}")
+            rate, p50, p99 = can_cycles_per_second(config, args.cycles)
         print(f"{name:<32} {rate:>9.0f} {rate * 0.005:>5.1f}x {p50:>7.2f} {p99:>7.2f}", flush=True)
     if vc.available:
         rate, p50, p99 = can_cycles_per_second(BusConfig("socketcan", "vcan0"), args.cycles)

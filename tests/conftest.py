@@ -1,7 +1,8 @@
 """Shared fixtures: CAN backends available on this machine.
 
 ``can_backend`` is parametrised over every backend; each test gets a fresh channel (a new
-virtual channel name, a new loopback hub) so tests never hear each other.
+virtual channel name, a new loopback hub, a new CAN-over-Zenoh channel on the session's
+embedded router) so tests never hear each other.
 """
 from __future__ import annotations
 
@@ -13,9 +14,17 @@ import pytest
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 
-BACKENDS = ("virtual", "remote", "socketcan")
+BACKENDS = ("virtual", "remote", "zenoh", "socketcan")
+
+
+@pytest.fixture(scope="session")
+def can_router():
+    """The embedded Zenoh router CAN-over-Zenoh channels of the test session go through."""
+    with EmbeddedRouter() as router:
+        yield router
 
 
 @pytest.fixture(params=BACKENDS)
@@ -27,6 +36,9 @@ def can_backend(request):
     elif kind == "remote":
         with LoopbackHub() as hub:
             yield hub.bus_config
+    elif kind == "zenoh":
+        router = request.getfixturevalue("can_router")
+        yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{router.endpoint}")
     else:
         status = vcan_status("vcan0")
         if not status.available:

@@ -1,0 +1,167 @@
+"""CAN over Zenoh: a python-can interface plugin (``interface="zenoh"``).
+
+Every bus on a channel publishes its frames on one Zenoh key, ``<prefix>/<channel>``
+(default prefix ``can``), and subscribes to it; the Zenoh router does the fan-out, so every
+frame one bus sends reaches every other bus of the channel, in the order each sender sent
+them, across processes and machines (like a CAN-over-Ethernet gateway). Registered as the
+``can.interface`` entry point ``zenoh``, so python-can and canopen users open it as::
+
+    can.Bus(interface="zenoh", channel="can0", connect="tcp/127.0.0.1:7447")
+    can.Bus(interface="zenoh", channel="can0@tcp/127.0.0.1:7447")     # the same, one string
+
+Each bus is its own Zenoh client session (``ersac_hil.zenoh_session.make_config``, so the
+project's endpoint rules apply: explicit endpoints, no multicast scouting); it does not hear
+its own frames unless ``receive_own_messages=True``. Delivery is reliable and blocking
+(congestion control ``BLOCK``, one priority, so frames are never dropped or reordered).
+Periodic sends use python-can's thread-based tasks (``modify_data`` works).
+
+Wire format of one sample (little-endian): ``u32 arbitration_id``, ``u8 flags`` (bit 0
+extended id, 1 remote, 2 error frame, 3 CAN FD, 4 bit-rate switch, 5 error-state
+indicator), ``u8 dlc``, then the data bytes.
+"""
+from __future__ import annotations
+
+import queue
+import struct
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import can
+import zenoh
+from can.bus import BusABC, CanProtocol
+
+from ersac_hil.zenoh_session import ZenohConfigError, make_config, open_session
+from protocol.zenoh.errors import KeySpaceError
+from protocol.zenoh.keys import validate_chunk
+
+__all__ = ["ZenohBus", "DEFAULT_PREFIX", "encode_frame", "decode_frame", "parse_channel"]
+
+DEFAULT_PREFIX = "can"
+_HEADER = struct.Struct("<IBB")
+_EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
+
+
+def encode_frame(msg: can.Message) -> bytes:
+    """The sample payload of ``msg`` (see the module doc)."""
+    flags = ((_EXTENDED if msg.is_extended_id else 0) | (_REMOTE if msg.is_remote_frame else 0)
+             | (_ERROR if msg.is_error_frame else 0) | (_FD if msg.is_fd else 0)
+             | (_BRS if msg.bitrate_switch else 0) | (_ESI if msg.error_state_indicator else 0))
+    return _HEADER.pack(msg.arbitration_id, flags, msg.dlc) + bytes(msg.data)
+
+
+def decode_frame(payload: bytes, channel: str | None = None) -> can.Message:
+    """A received ``can.Message`` (timestamped now) from a sample payload.
+
+    Raises:
+        ValueError: a payload too short for its header.
+    """
+    if len(payload) < _HEADER.size:
+        raise ValueError(f"CAN-over-Zenoh sample of {len(payload)} bytes: shorter than its header")
+    arbitration_id, flags, dlc = _HEADER.unpack_from(payload)
+    return can.Message(timestamp=time.time(), arbitration_id=arbitration_id,
+                       is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
+                       is_error_frame=bool(flags & _ERROR), is_fd=bool(flags & _FD),
+                       bitrate_switch=bool(flags & _BRS), error_state_indicator=bool(flags & _ESI),
+                       dlc=dlc, data=payload[_HEADER.size:], channel=channel, is_rx=True,
+                       check=False)
+
+
+def parse_channel(channel: Any, connect: str | Sequence[str] | None = None) -> tuple[str, tuple[str, ...]]:
+    """``(channel name, endpoints)`` from ``"name"`` plus ``connect``, or ``"name@ep[,ep...]"``.
+
+    Raises:
+        can.CanInterfaceNotImplementedError: never; ``ValueError`` for a bad channel.
+    """
+    if not isinstance(channel, str) or not channel:
+        raise ValueError(f"zenoh CAN channel must be a non-empty string, got {channel!r}")
+    name, _, inline = channel.partition("@")
+    endpoints: list[str] = [e for e in inline.split(",") if e] if inline else []
+    if connect is not None:
+        endpoints += [e for e in connect.split(",") if e] if isinstance(connect, str) else list(connect)
+    try:
+        validate_chunk(name, "zenoh CAN channel name")
+    except KeySpaceError as exc:
+        raise ValueError(str(exc)) from None
+    if not endpoints:
+        raise ValueError(f"zenoh CAN channel {name!r}: no Zenoh endpoint (channel 'name@tcp/HOST:PORT' "
+                         "or connect=...)")
+    return name, tuple(endpoints)
+
+
+class ZenohBus(BusABC):
+    """A python-can bus whose frames travel as Zenoh samples (see the module doc).
+
+    Args:
+        channel: ``"name"`` (with ``connect``) or ``"name@tcp/HOST:PORT[,...]"``.
+        connect: Zenoh endpoints to connect to (string, comma-separated, or sequence).
+        prefix: key prefix of the channel's key (default ``can``).
+        receive_own_messages: also receive the frames this bus sends.
+        mode: Zenoh session mode, ``client`` (default, through the router) or ``peer``.
+        connect_timeout: s to keep trying the endpoints when opening.
+        **kwargs: other python-can arguments (``bitrate``, ``can_filters``...); bit rate
+            has no meaning here and is ignored.
+
+    Raises:
+        can.CanInitializationError: bad channel or endpoints, or no Zenoh session.
+    """
+
+    def __init__(self, channel: Any = None, can_filters=None, *, connect: str | Sequence[str] | None = None,  # noqa: ANN001
+                 prefix: str = DEFAULT_PREFIX, receive_own_messages: bool = False,
+                 mode: str = "client", connect_timeout: float = 10.0, **kwargs: Any) -> None:
+        try:
+            name, endpoints = parse_channel(channel, connect)
+            config = make_config(mode, connect=list(endpoints), connect_timeout_s=float(connect_timeout))
+            for chunk in str(prefix).split("/"):
+                validate_chunk(chunk, "zenoh CAN key prefix")
+        except (ValueError, ZenohConfigError, KeySpaceError) as exc:
+            raise can.CanInitializationError(str(exc)) from None
+        self.key = f"{prefix}/{name}"
+        self.channel_info = f"CAN over Zenoh on {self.key} via {','.join(endpoints)}"
+        self._name = name
+        self._rx: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        try:
+            self._session = open_session(config)
+        except Exception as exc:  # noqa: BLE001 - ZenohSessionError and whatever zenoh raises
+            raise can.CanInitializationError(f"{self.channel_info}: {exc}") from None
+        origin = zenoh.Locality.ANY if receive_own_messages else zenoh.Locality.REMOTE
+        self._publisher = self._session.declare_publisher(
+            self.key, congestion_control=zenoh.CongestionControl.BLOCK, express=False,
+            reliability=zenoh.Reliability.RELIABLE)
+        self._subscriber = self._session.declare_subscriber(self.key, self._on_sample,
+                                                            allowed_origin=origin)
+        self._closed = False
+        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        self._can_protocol = CanProtocol.CAN_FD
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            self._rx.put(decode_frame(sample.payload.to_bytes(), self._name))
+        except ValueError:
+            pass  # not a frame: nothing a CAN node could receive
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            return self._rx.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._closed:
+            raise can.CanOperationError(f"{self.channel_info}: bus is shut down")
+        try:
+            self._publisher.put(encode_frame(msg))
+        except zenoh.ZError as exc:
+            raise can.CanOperationError(f"{self.channel_info}: {exc}") from exc
+
+    def shutdown(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        super().shutdown()
+        for entity in (self._subscriber, self._publisher):
+            try:
+                entity.undeclare()
+            except zenoh.ZError:
+                pass
+        self._session.close()

@@ -1,0 +1,168 @@
+"""The CAN-over-Zenoh python-can plugin: real buses through the session's embedded router.
+
+The CiA 301 conformance suite and the agent tests also run on it (``can_backend`` "zenoh");
+here: the wire format, what python-can users rely on (entry point, order, own frames, filters,
+periodic tasks with modify_data), refusals, and a bus spanning two processes.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+import uuid
+
+import can
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, encode_frame
+
+TIMEOUT = 10.0
+
+
+def _channel(router) -> str:  # noqa: ANN001
+    return f"t-{uuid.uuid4().hex[:8]}@{router.endpoint}"
+
+
+@pytest.fixture
+def pair(can_router):
+    channel = _channel(can_router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel)
+    _wait_linked(a, b)
+    yield a, b
+    a.shutdown()
+    b.shutdown()
+
+
+def _wait_linked(a: can.BusABC, b: can.BusABC) -> None:
+    """Until a frame from ``a`` reaches ``b`` (subscriptions propagate asynchronously)."""
+    deadline = time.monotonic() + TIMEOUT
+    probe = can.Message(arbitration_id=0x7FF, data=b"probe")
+    while time.monotonic() < deadline:
+        a.send(probe)
+        if b.recv(0.05) is not None:
+            while b.recv(0.05) is not None:
+                pass
+            return
+    pytest.fail("the two buses never linked")
+
+
+frames = st.builds(
+    lambda ext, ident, data, fd, brs, esi: can.Message(
+        arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF), is_extended_id=ext, data=data,
+        is_fd=fd, bitrate_switch=brs and fd, error_state_indicator=esi and fd),
+    st.booleans(), st.integers(0, 0x1FFFFFFF), st.binary(max_size=8), st.booleans(), st.booleans(),
+    st.booleans())
+
+
+@given(frames)
+def test_the_wire_format_round_trips_every_field(msg):
+    back = decode_frame(encode_frame(msg), "c")
+    assert back.equals(msg, timestamp_delta=None, check_channel=False, check_direction=False)
+    assert back.is_rx and back.channel == "c"
+
+
+def test_a_short_payload_is_not_a_frame():
+    with pytest.raises(ValueError, match="shorter than its header"):
+        decode_frame(b"\x01\x02")
+
+
+def test_the_entry_point_opens_it_and_frames_arrive_in_order(pair):
+    a, b = pair
+    assert isinstance(a, ZenohBus)
+    sent = [can.Message(arbitration_id=0x180 + i % 7, data=bytes([i % 256, i // 256])) for i in range(300)]
+    for msg in sent:
+        a.send(msg)
+    got = [b.recv(TIMEOUT) for _ in sent]
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    assert a.recv(0.1) is None  # a bus does not hear itself by default
+
+
+def test_own_frames_on_request_and_other_channels_stay_apart(can_router):
+    channel = _channel(can_router)
+    own = can.Bus(interface="zenoh", channel=channel, receive_own_messages=True)
+    other = can.Bus(interface="zenoh", channel=_channel(can_router))
+    try:
+        own.send(can.Message(arbitration_id=0x123, data=b"x"))
+        echo = own.recv(TIMEOUT)
+        assert echo is not None and echo.arbitration_id == 0x123
+        assert other.recv(0.2) is None
+    finally:
+        own.shutdown()
+        other.shutdown()
+
+
+def test_filters_apply(can_router):
+    channel = _channel(can_router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel, can_filters=[{"can_id": 0x181, "can_mask": 0x7FF}])
+    try:
+        deadline = time.monotonic() + TIMEOUT
+        got = None
+        while got is None and time.monotonic() < deadline:
+            a.send(can.Message(arbitration_id=0x182, data=b"no"))
+            a.send(can.Message(arbitration_id=0x181, data=b"yes"))
+            got = b.recv(0.1)
+        assert got is not None and got.arbitration_id == 0x181
+    finally:
+        a.shutdown()
+        b.shutdown()
+
+
+def test_periodic_tasks_change_their_data(pair):
+    """python-can-remote 0.3 cannot (NOTES.md); heartbeats depend on it."""
+    a, b = pair
+    task = a.send_periodic(can.Message(arbitration_id=0x701, data=[0x7F]), period=0.01)
+    try:
+        task.modify_data(can.Message(arbitration_id=0x701, data=[0x05]))
+        deadline = time.monotonic() + TIMEOUT
+        seen = None
+        while time.monotonic() < deadline and seen != b"\x05":
+            msg = b.recv(TIMEOUT)
+            seen = bytes(msg.data) if msg is not None else None
+        assert seen == b"\x05"
+    finally:
+        task.stop()
+
+
+@pytest.mark.parametrize("channel, match", [
+    ("can0", "no Zenoh endpoint"),
+    ("bad/name@tcp/127.0.0.1:7447", "not a valid key chunk"),
+    ("can0@tcp/10.1.2.3:7447", "loopback"),
+])
+def test_bad_channels_are_refused(channel, match):
+    with pytest.raises(can.CanInitializationError, match=match):
+        can.Bus(interface="zenoh", channel=channel)
+
+
+def test_no_router_is_an_initialisation_error():
+    from ersac_hil.zenoh_session import free_tcp_port
+    with pytest.raises(can.CanInitializationError):
+        can.Bus(interface="zenoh", channel=f"c@tcp/127.0.0.1:{free_tcp_port()}", connect_timeout=0.3)
+
+
+def test_the_bus_spans_processes(can_router):
+    channel = _channel(can_router)
+    bus = can.Bus(interface="zenoh", channel=channel)
+    code = (
+        "import can, sys\n"
+        f"bus = can.Bus(interface='zenoh', channel={channel!r})\n"
+        "msg = bus.recv(20.0)\n"
+        "bus.send(can.Message(arbitration_id=msg.arbitration_id + 1, data=bytes(msg.data)[::-1]))\n"
+        "bus.shutdown()\n")
+    child = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        deadline = time.monotonic() + 30
+        reply = None
+        while reply is None and time.monotonic() < deadline and child.poll() is None:
+            bus.send(can.Message(arbitration_id=0x200, data=b"\x01\x02\x03"))
+            reply = bus.recv(0.2)
+        assert reply is not None and reply.arbitration_id == 0x201 and bytes(reply.data) == b"\x03\x02\x01"
+        assert child.wait(30) == 0
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        bus.shutdown()
