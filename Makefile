@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/episode.py
 	$(BIN)/python bench/bracing_sweep.py
+	$(BIN)/python bench/fault_latency.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -27,10 +27,10 @@ class _HubService:
     def start(self) -> None:
         from ersac_hil.canbus.hub import LoopbackHub
         self.hub = LoopbackHub(self.port)
-        print(f"CAN hub: {self.hub.url}", flush=True)
         if self.monitor:
             from ersac_hil.canbus.monitor import BusMonitor
             self._mon = BusMonitor(self.hub.bus_config).start()
+        print(f"CAN hub: {self.hub.url}", flush=True)  # ready: the monitor hears every frame from now on
 
     def stop(self) -> None:
         if self._mon is not None:

@@ -8,8 +8,9 @@ import uuid
 import pytest
 
 from firmware_sim.nodes.simbench import SimulatedBench
-from protocol.can.bench import ARM_LEFT, BENCH, IMU, TESTBENCH, TORSO, WHEELS, object_dictionary
-from protocol.can.busconfig import BusConfig, open_network
+from helpers.can_nodes import Master
+from protocol.can.bench import ARM_LEFT, BENCH, IMU, TESTBENCH, TORSO, WHEELS
+from protocol.can.busconfig import BusConfig
 from protocol.can.objects import OBJECTS, Index
 
 pytestmark = pytest.mark.timeout(120)
@@ -21,16 +22,15 @@ def rig():
     and the test's SDO client with the EDS object dictionaries."""
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
     bench = SimulatedBench(config)
-    net = open_network(config)
-    nodes = {d.name: net.add_node(d.node_id, object_dictionary(d)) for d in BENCH}
+    master = Master(config, BENCH)
     with bench.lock:
         bench.sim.reset("bracing", 5)
         bench.sim.trigger_impact()
         bench.sim.controller(TORSO.name).set_setpoint(TORSO.joints[0], 0.3)  # the torso moves too
         for _ in range(100):
             bench.sim.step()
-    yield bench, nodes
-    net.disconnect()
+    yield bench, master.nodes
+    master.close()
     bench.close()
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
 from ersac_hil.canbus import LoopbackHub
+from helpers.waiting import wait_until
 from protocol.can.bench import BENCH, TESTBENCH, object_dictionary
 from protocol.can.busconfig import open_network
 
@@ -28,10 +28,7 @@ def test_sim_process_serves_the_bench_and_stops_on_signal(sig):
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert proc.stdout.readline().startswith("simulator: 6 nodes on remote:")
-            deadline = time.monotonic() + 5
-            while booted != {d.node_id for d in BENCH} and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert booted == {d.node_id for d in BENCH}
+            wait_until(lambda: booted == {d.node_id for d in BENCH}, what="the boot-up of every node")
             tb = net.add_node(TESTBENCH.node_id, object_dictionary(TESTBENCH))
             assert tb.sdo[0x1018][2].raw == object_dictionary(TESTBENCH)[0x1018][2].default
             proc.send_signal(sig)

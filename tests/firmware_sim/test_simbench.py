@@ -2,17 +2,14 @@
 splines download and run, the test bench resets scenarios, telemetry is deterministic."""
 from __future__ import annotations
 
-import threading
-import time
-
 import pytest
 from canopen.sdo import SdoAbortedError
 
 from firmware_sim.nodes.simbench import SimulatedBench
+from helpers.can_nodes import FrameLog, Master, set_state
 from protocol.can import cobid
 from protocol.can import objects as o
-from protocol.can.bench import ARM_LEFT, BENCH, TESTBENCH, WHEELS, object_dictionary
-from protocol.can.busconfig import open_network
+from protocol.can.bench import ARM_LEFT, BENCH, TESTBENCH, WHEELS
 from protocol.can.pdo import cyclic_pdos
 from protocol.can.objects import Control, Index, Status
 from protocol.can.sdo import RANGE_ABORTS
@@ -25,35 +22,22 @@ N_TPDO = sum(1 for p in cyclic_pdos() if p.direction == "tpdo")  # per SYNC, who
 @pytest.fixture
 def rig(can_backend):
     bench = SimulatedBench(can_backend)
-    net = open_network(can_backend)
-    nodes = {d.name: net.add_node(d.node_id, object_dictionary(d)) for d in BENCH}
-    yield bench, net, nodes
-    net.disconnect()
+    master = Master(can_backend, BENCH)
+    yield bench, master.network, master.nodes
+    master.close()
     bench.close()
 
 
-class Recorder:
+def tpdo_log(net) -> FrameLog:
     """Every TPDO frame of the bench, in arrival order."""
-
-    def __init__(self, net):
-        self.frames: list[tuple[int, bytes]] = []
-        self._lock = threading.Lock()
-        self.cobs = [c for d in BENCH for c in (cobid.tpdo(n, d.node_id) for n in (1, 2, 3))]
-        for c in self.cobs:
-            net.subscribe(c, self.on_frame)
-
-    def on_frame(self, can_id, data, ts):
-        with self._lock:
-            self.frames.append((can_id, bytes(data)))
+    return FrameLog(net, [cobid.tpdo(n, d.node_id) for d in BENCH for n in (1, 2, 3)])
 
 
-def sync_and_wait(net, rec: Recorder, expected: int, timeout: float = 1.0) -> None:
-    n0 = len(rec.frames)
+def sync_and_wait(net, log: FrameLog, expected: int) -> None:
+    """One SYNC, then wait for the ``expected`` TPDO frames it makes the bench send."""
+    n0 = len(log.frames)
     net.send_message(cobid.SYNC, b"")
-    deadline = time.monotonic() + timeout
-    while len(rec.frames) < n0 + expected and time.monotonic() < deadline:
-        time.sleep(0.0002)
-    assert len(rec.frames) >= n0 + expected, "TPDOs missing after SYNC"
+    log.wait_for(lambda frames: len(frames) >= n0 + expected, what="the TPDOs of a SYNC")
 
 
 def send(pdo_map, *raw: int) -> None:
@@ -101,9 +85,8 @@ def test_spline_download_start_and_tracking(rig):
     arm.sdo[Index.SPLINE_KNOT_COUNT].raw = 2
     assert bench.sim.controller("arm_left").spline is not None
     arm.rpdo.read(from_od=True)
-    net.nmt.state = "OPERATIONAL"
-    time.sleep(0.05)
-    rec = Recorder(net)
+    set_state(net, BENCH, "OPERATIONAL")
+    rec = tpdo_log(net)
     elbow = o.POSITION.to_raw(bench.sim.axis("elbow_left").position)
     for k in range(120):  # 0.6 s
         word = Control.ENABLE | (Control.START_SPLINE if k >= 1 else Control(0))
@@ -141,16 +124,14 @@ def _episode_frames(rig, seed: int, cycles: int) -> list[tuple[int, bytes]]:
     net.nmt.state = "PRE-OPERATIONAL"
     reset(nodes, o.Scenario.BRACING, seed)
     nodes[ARM_LEFT.name].sdo[Index.STIFFNESS][2].raw = 20000
-    net.nmt.state = "OPERATIONAL"
-    time.sleep(0.05)
-    rec = Recorder(net)
+    set_state(net, BENCH, "OPERATIONAL")
+    rec = tpdo_log(net)
     wheels = nodes[WHEELS.name]
     wheels.rpdo.read(from_od=True)
     for k in range(cycles):
         send(wheels.rpdo.map[1], (k * 37) % 2000 - 1000, (k * 53) % 2000 - 1000, int(Control.ENABLE))
         sync_and_wait(net, rec, N_TPDO)
-    for c in rec.cobs:
-        net.unsubscribe(c, rec.on_frame)
+    rec.close()
     return rec.frames
 
 
@@ -179,11 +160,10 @@ def test_setpoint_sent_with_the_enabling_rpdo_takes_effect(rig):
     reset(nodes, o.Scenario.IDLE, 1)
     arm = nodes[ARM_LEFT.name]
     arm.rpdo.read(from_od=True)
-    net.nmt.state = "OPERATIONAL"
-    time.sleep(0.05)
+    set_state(net, BENCH, "OPERATIONAL")
     target = bench.sim.axis("shoulder_left").position + 0.3
     elbow = o.POSITION.to_raw(bench.sim.axis("elbow_left").position)
-    rec = Recorder(net)
+    rec = tpdo_log(net)
     send(arm.rpdo.map[1], o.POSITION.to_raw(target), elbow, int(Control.ENABLE))
     sync_and_wait(net, rec, N_TPDO)
     assert bench.sim.controller("arm_left").setpoint("shoulder_left") == pytest.approx(target, abs=1e-3)

@@ -1,17 +1,16 @@
 """CiA 301 conformance of every node of the bench, over every available CAN backend.
 
 Written against the ``bench``/``master`` fixtures only (tests/protocol/conftest.py), so the
-same tests run against the reference nodes and the firmware simulator.
+same tests run against the reference nodes and the firmware simulator. Every wait is on frames
+(or an SDO barrier) with a deadline; how fast the nodes react is measured by bench/fault_latency.py.
 """
 from __future__ import annotations
-
-import threading
-import time
 
 import pytest
 from canopen.sdo import SdoAbortedError
 
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
+from helpers.can_nodes import FrameLog, heartbeats, reported, sdo_barrier, set_state
 from protocol.can import cobid
 from protocol.can.bench import object_dictionary
 from protocol.can.objects import EmcyCode, Index, Status
@@ -21,23 +20,8 @@ from protocol.can.sdo import RANGE_ABORTS, AbortCode
 pytestmark = pytest.mark.timeout(60)
 
 
-def wait_state(node, state: str, timeout: float = 1.0) -> str:
-    deadline = time.monotonic() + timeout
-    seen = None
-    while time.monotonic() < deadline:
-        try:
-            seen = node.nmt.wait_for_heartbeat(timeout=max(0.01, deadline - time.monotonic()))
-        except Exception:
-            continue
-        if seen == state:
-            return seen
-    return seen
-
-
 def all_state(master, state: str) -> None:
-    master.network.nmt.state = state
-    for name, node in master.nodes.items():
-        assert wait_state(node, state) == state, f"{name} heartbeat does not report {state}"
+    set_state(master.network, master.devices.values(), state)
 
 
 def test_nmt_transitions_reported_by_heartbeat(master):
@@ -47,10 +31,15 @@ def test_nmt_transitions_reported_by_heartbeat(master):
 
 def test_reset_sends_bootup_then_preoperational(master):
     all_state(master, "OPERATIONAL")
-    node = next(iter(master.nodes.values()))
-    node.nmt.state = "RESET"
-    node.nmt.wait_for_bootup(timeout=1.0)
-    assert wait_state(node, "PRE-OPERATIONAL") == "PRE-OPERATIONAL"
+    name, node = next(iter(master.nodes.items()))
+    log = heartbeats(master.network, master.devices.values())  # before the reset: boot-up may come at once
+    try:
+        node.nmt.state = "RESET"
+        booted = log.wait_for(reported(node.id, "INITIALISING"), what=f"{name} boot-up")
+        log.wait_for(reported(node.id, "PRE-OPERATIONAL", after=booted),
+                     what=f"{name} PRE-OPERATIONAL after its boot-up")
+    finally:
+        log.close()
 
 
 def test_identity_object_matches_eds(master):
@@ -112,41 +101,29 @@ def test_sdo_abort_out_of_range_value_changes_nothing(master):
     assert checked > 10  # stiffness, damping, limits, spline, scenario ... all refused
 
 
-def _tpdo_counter(master):
-    counts: dict[int, int] = {}
-    lock = threading.Lock()
-
-    def on_frame(can_id, data, timestamp):
-        with lock:
-            counts[can_id] = counts.get(can_id, 0) + 1
-
-    expected = [p.cob_id for d in master.devices.values() for p in pdo_maps(d)
-                if p.direction == "tpdo" and p.synchronous]
-    for cob in expected:
-        master.network.subscribe(cob, on_frame)
-    return counts, expected
+def _tpdo_log(master) -> FrameLog:
+    return FrameLog(master.network, [p.cob_id for d in master.devices.values() for p in pdo_maps(d)
+                                     if p.direction == "tpdo" and p.synchronous])
 
 
 def test_one_tpdo_per_sync_per_mapped_pdo(master):
-    counts, expected = _tpdo_counter(master)
+    log = _tpdo_log(master)
     all_state(master, "OPERATIONAL")
     n_sync = 20
-    for i in range(n_sync):
+    for i in range(1, n_sync + 1):
         master.network.send_message(cobid.SYNC, b"")
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline and any(counts.get(c, 0) < i + 1 for c in expected):
-            time.sleep(0.0005)
-    time.sleep(0.05)
-    assert {hex(c): counts.get(c, 0) for c in expected} == {hex(c): n_sync for c in expected}
+        log.wait_for(lambda frames: all(n >= i for n in log.counts().values()), what=f"TPDOs of SYNC {i}")
+    sdo_barrier(master.nodes.values())  # anything sent after the last SYNC's TPDOs is in now
+    assert log.counts() == {c: n_sync for c in log.cob_ids}
 
 
 def test_no_tpdo_unless_operational(master):
-    counts, expected = _tpdo_counter(master)
+    log = _tpdo_log(master)
     all_state(master, "PRE-OPERATIONAL")
     for _ in range(5):
         master.network.send_message(cobid.SYNC, b"")
-    time.sleep(0.1)
-    assert not counts
+    sdo_barrier(master.nodes.values())  # every node has handled the SYNCs before it answers
+    assert not log.frames
 
 
 def test_rpdo_takes_effect_at_sync(master):
@@ -165,7 +142,7 @@ def test_rpdo_takes_effect_at_sync(master):
             pdo_map.transmit()
     assert sent
     master.network.send_message(cobid.SYNC, b"")
-    time.sleep(0.1)
+    # the SDO reads below reach each node after its RPDOs and the SYNC, in bus order
     for (name, index, sub), value in sent.items():
         sdo = master.nodes[name].sdo
         got = sdo[index][sub].raw if sub else sdo[index].raw
@@ -173,25 +150,23 @@ def test_rpdo_takes_effect_at_sync(master):
 
 
 def test_heartbeat_loss_gives_emcy_and_safe_state(master):
-    received: dict[int, list[int]] = {}
-
-    def on_emcy(can_id, data, timestamp):
-        received.setdefault(can_id & 0x7F, []).append(int.from_bytes(data[:2], "little"))
-
-    for d in master.devices.values():
-        master.network.subscribe(cobid.emcy(d.node_id), on_emcy)
+    ids = {d.node_id for d in master.devices.values()}
+    emcy = FrameLog(master.network, [cobid.emcy(i) for i in ids])
+    beats = heartbeats(master.network, master.devices.values())
+    consumer_s = max(object_dictionary(d)[0x1016][1].default & 0xFFFF for d in master.devices.values()) / 1000
+    producer_s = min(object_dictionary(d)[0x1017].default for d in master.devices.values()) / 1000
     with HeartbeatProducer(master.network):
         all_state(master, "OPERATIONAL")
-        time.sleep(0.3)
-        assert not received
-    stopped = time.monotonic()
-    deadline = stopped + 1.0
-    ids = {d.node_id for d in master.devices.values()}
-    while time.monotonic() < deadline and set(received) != ids:
-        time.sleep(0.005)
-    elapsed = time.monotonic() - stopped
-    assert set(received) == ids, f"EMCY from {sorted(received)}, expected {sorted(ids)}"
-    assert elapsed < 3 * 0.1 + 0.1  # within 3 heartbeat periods of the agent
-    assert all(EmcyCode.HEARTBEAT_LOST in codes for codes in received.values())
+        # every node beats for longer than its consumer time while the agent's heartbeat runs
+        n_beats = int(consumer_s / producer_s) + 2
+        beats.wait_for(lambda frames: all(beats.count(cobid.heartbeat(i)) >= n_beats for i in ids),
+                       what=f"{n_beats} heartbeats of every node")
+        sdo_barrier(master.nodes.values())
+        assert not emcy.frames
+    emcy.wait_for(lambda frames: {c & 0x7F for c, _ in frames} == ids, what="EMCY from every node")
+    codes = {}
+    for can_id, data in emcy.frames:
+        codes.setdefault(can_id & 0x7F, []).append(int.from_bytes(data[:2], "little"))
+    assert all(EmcyCode.HEARTBEAT_LOST in c for c in codes.values()), codes
     for name, node in master.nodes.items():
         assert Status(node.sdo[Index.STATUS].raw) & Status.SAFE_STATE, name

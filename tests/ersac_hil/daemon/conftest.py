@@ -1,39 +1,19 @@
 """Fixtures of the daemon tests: a real embedded Zenoh router, the synthetic agent (real
-protocol over a real session), in-process daemons on tmp_path stores, polling helpers."""
+protocol over a real session), in-process daemons on tmp_path stores."""
 from __future__ import annotations
 
 import os
 import sys
-import time
-from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-from synthetic_agent import SyntheticAgent  # noqa: E402
-
-from ersac_hil.daemon.config import DaemonConfig  # noqa: E402
-from ersac_hil.daemon.service import Daemon  # noqa: E402
-from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
-from protocol.zenoh import KeySpace  # noqa: E402
+from ersac_hil.daemon.config import DaemonConfig
+from ersac_hil.daemon.service import Daemon
+from ersac_hil.zenoh_session import EmbeddedRouter
+from helpers.synthetic_agent import SyntheticAgent
+from protocol.zenoh import KeySpace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-TIMEOUT = 60.0
-
-
-def wait_until(predicate: Callable[[], object], timeout_s: float = TIMEOUT, poll_s: float = 0.02) -> object:
-    """Poll ``predicate`` until truthy; fail the test on timeout."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"condition not met within {timeout_s} s")
-        time.sleep(poll_s)
 
 
 @pytest.fixture(scope="module")

@@ -16,11 +16,12 @@ import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import wait_until
 from ersac_hil.daemon.clients import LearnerClient, NoAnswer, RequestRefused
 from ersac_hil.daemon.config import DaemonConfig
 from ersac_hil.daemon.service import Daemon
 from ersac_hil.daemon.store import Store
+from helpers.synthetic_agent import SyntheticAgent
+from helpers.waiting import wait_until
 from protocol.zenoh import (
     CriticQuery,
     CriticReply,
@@ -33,7 +34,6 @@ from protocol.zenoh import (
     SelectReply,
     WeightsCommand,
 )
-from synthetic_agent import SyntheticAgent
 
 ROBOT = "ctl"
 KS = KeySpace(ROBOT)

@@ -12,7 +12,8 @@ so J = 10 damage + 0.1 body_acc_sq + 5 arm_power: the mean falls and then rises 
 while its spread grows. Faults: the first attempt of every episode whose seed is divisible by
 ``fault_every`` gets ``fault_pdo_timeout`` (deterministic in the request, so retries succeed).
 
-Run standalone: ``python synthetic_agent.py --robot R --zenoh tcp/127.0.0.1:P [--delay S]``.
+Run standalone: ``python tests/helpers/synthetic_agent.py --robot R --zenoh tcp/127.0.0.1:P
+[--delay S]``.
 """
 from __future__ import annotations
 
@@ -62,7 +63,7 @@ class SyntheticAgent:
     Args:
         session: an open Zenoh session.
         keys: the robot's key space.
-        delay_s: wall time each episode takes.
+        delay_s: wall time each episode takes (``close()`` ends a running one without a reply).
         fault_every: seeds divisible by this get a fault on their first attempt (0: never).
         always_fault: every episode ends with a fault.
         refuse_above: requests with theta[0] above this get ``reply_err`` ``invalid_request``
@@ -82,6 +83,7 @@ class SyntheticAgent:
         self.fault_every = fault_every
         self.requests: list[EpisodeRequest] = []
         self._lock = threading.Lock()
+        self._closed = threading.Event()
         self._token = session.liveliness().declare_token(keys.agent_alive)
         self._done = session.declare_publisher(keys.episode_done)
         self._queryable = session.declare_queryable(keys.episode_run, self._on_query)
@@ -101,8 +103,8 @@ class SyntheticAgent:
             return
         try:
             self.requests.append(request)
-            if self.delay_s:
-                time.sleep(self.delay_s)
+            if self.delay_s and self._closed.wait(self.delay_s):
+                return  # closed while the episode ran
             attempt = int(request.episode_id.rsplit(".", 1)[-1]) if "." in request.episode_id else 0
             if self.always_fault or (self.fault_every and request.seed % self.fault_every == 0
                                      and attempt == 0):
@@ -128,6 +130,7 @@ class SyntheticAgent:
             self._lock.release()
 
     def close(self) -> None:
+        self._closed.set()
         for entity in (self._queryable, self._done, self._token):
             try:
                 entity.undeclare()

@@ -1,0 +1,10 @@
+"""Code the tests share, imported by name (``from helpers.waiting import wait_until``).
+
+``tests/`` is on ``sys.path`` (``pythonpath`` in pyproject.toml); ``conftest.py`` files only
+declare fixtures and are never imported.
+
+* ``waiting``         - ``wait_until``: poll a condition up to a deadline, fail the test after it
+* ``can_nodes``       - the reference bench (static CiA 301 nodes from the EDS files), a test-side
+                        CANopen master, a frame counter, the SDO barrier, actions at a SYNC
+* ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)
+"""
