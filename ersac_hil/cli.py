@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _extensions():
     """Subcommands contributed by other modules of this package (agent, daemon, demo...)."""
     import importlib
-    for name in ("ersac_hil.agent.cli", "ersac_hil.daemon.cli", "ersac_hil.demo"):
+    for name in ("ersac_hil.agent.cli", "ersac_hil.daemon.cli", "ersac_hil.demo", "ersac_hil.certs"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:

@@ -48,6 +48,7 @@ __all__ = [
     "zenoh_options",
     "resolve_config",
     "is_loopback",
+    "split_endpoint",
     "ZenohConfigError",
     "EndpointError",
     "ZenohSessionError",
@@ -104,6 +105,12 @@ def _parse(endpoint: Any) -> re.Match[str]:
             f"endpoint {endpoint[:120]!r} is not of the form PROTOCOL/HOST:PORT with a port in "
             "1..65535 (e.g. tcp/127.0.0.1:7447, tls/192.0.2.10:7447, tls/[::1]:7447)")
     return match
+
+
+def split_endpoint(endpoint: str) -> tuple[str, str, int]:
+    """``"tls/[::1]:7447#x=1"`` -> ``("tls", "::1", 7447)``. Raises :class:`EndpointError`."""
+    match = _parse(endpoint)
+    return match["proto"], match["v6"] or match["host"], int(match["port"])
 
 
 def is_loopback(endpoint: str) -> bool:
@@ -443,7 +450,7 @@ class EmbeddedRouter:
         if self._config is not None:
             self._session = open_session(self._config, insecure=self._insecure)
             self._endpoint = _json_at(self._config, "listen/endpoints")[0]
-            self._port = int(_parse(self._endpoint)["port"])
+            self._port = split_endpoint(self._endpoint)[2]
             self._stopped.clear()
             return self
         tries = 1 if self._requested is not None else max(1, attempts)

@@ -1,6 +1,7 @@
 """The agent process: a Zenoh front end on the episode runner.
 
-* liveliness token ``<prefix>/<robot>/agent/alive`` while the agent is up;
+* liveliness token ``<prefix>/<robot>/agent/alive`` while the agent is up, and
+  ``.../agent/session/<zid>`` naming its session (the learner accepts replies from it only);
 * queryable ``<prefix>/<robot>/episode/run``: ``EpisodeRequest`` -> ``EpisodeResult``; every
   refusal is a ``reply_err`` with an ``ErrorReply`` (a task this agent does not serve, in the
   contract or not -> ``unknown_task``; invalid payload, wrong dimension, NaN, out of bounds,
@@ -100,6 +101,7 @@ class AgentService:
             self._publisher,
             s.declare_subscriber(self.keys.agent_go, lambda sample: self._go.set()),
             s.declare_queryable(self.keys.episode_run, self._on_query),
+            s.liveliness().declare_token(self.keys.agent_session(s.info.zid())),
             s.liveliness().declare_token(self.keys.agent_alive),
         ]
         log.info("agent %s ready: bus %s, zenoh %s %s", self.keys.root, cfg.bus.describe(),

@@ -12,11 +12,19 @@ status         when
 ``refused``    ``reply_err`` with an ``ErrorReply``: ``code`` is the agent's error code
 ``timeout``    no reply within ``episode_timeout_s``, or the query ended early without one
 ``lost``       the query ended early and the agent's liveliness token went with it
-``bad_reply``  a payload that does not decode, or a result for another episode or task
+``bad_reply``  a payload that does not decode, a result for another episode or task, or
+               only replies from a session that is not the agent's (see below)
 ``interrupted`` :meth:`AgentLink.cancel` (the daemon is stopping)
 =============  =========================================================================
 
 A lost agent cancels the running query at once (no wait for the timeout).
+
+Reply source: the agent declares a second liveliness token, ``agent/session/<zid>``, naming
+its Zenoh session. The query goes to every ``episode/run`` queryable (target ALL, no
+consolidation) and only a reply whose replier is such a session counts; a reply from any
+other session (a rogue queryable) is never used, and if no agent reply comes the attempt is
+``bad_reply`` naming the foreign session. With TLS and the access control of
+``ersac_hil.roles`` a non-agent identity cannot even declare the queryable.
 """
 from __future__ import annotations
 
@@ -70,14 +78,19 @@ class AgentLink:
         self.timeout_s = episode_timeout_s
         self._stop = stop
         self._agents: set[str] = set()
+        self._sessions: set[str] = set()
         self._change = threading.Condition()
         self._token: zenoh.CancellationToken | None = None
         self._liveliness = session.liveliness().declare_subscriber(
             keys.agent_alive, self._on_alive, history=True)
-        self._querier = session.declare_querier(keys.episode_run, timeout=episode_timeout_s)
+        self._session_tokens = session.liveliness().declare_subscriber(
+            keys.agent_sessions, self._on_session, history=True)
+        self._querier = session.declare_querier(
+            keys.episode_run, timeout=episode_timeout_s, target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE)
 
     def close(self) -> None:
-        for entity in (self._querier, self._liveliness):
+        for entity in (self._querier, self._session_tokens, self._liveliness):
             entity.undeclare()
 
     # ------------------------------------------------------------------ presence
@@ -93,14 +106,23 @@ class AgentLink:
                     token.cancel()  # the episode's agent vanished: do not wait for the timeout
             self._change.notify_all()
 
+    def _on_session(self, sample: zenoh.Sample) -> None:
+        zid = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._change:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._sessions.add(zid)
+            else:
+                self._sessions.discard(zid)
+            self._change.notify_all()
+
     @property
     def alive(self) -> bool:
         """The agent's liveliness token is present."""
         return bool(self._agents)
 
     def ready(self) -> bool:
-        """Token present and the ``episode/run`` queryable reachable."""
-        return bool(self._agents) and self._querier.matching_status.matching
+        """Tokens present (presence and session) and the ``episode/run`` queryable reachable."""
+        return bool(self._agents) and bool(self._sessions) and self._querier.matching_status.matching
 
     def wait_ready(self, wait_s: float | None) -> None:
         """Block until :meth:`ready`; raises :class:`AgentAbsent` after ``wait_s`` (``None``:
@@ -142,16 +164,20 @@ class AgentLink:
         if self._stop.is_set():
             token.cancel()
         started = time.monotonic()
+        foreign: list[str] = []
         try:
             replies = self._querier.get(payload=request.to_json(), encoding="application/json",
                                         cancellation_token=token)
-            reply = next(iter(replies), None)
+            reply = self._agent_reply(replies, foreign)
         except zenoh.ZError as exc:
             if not token.is_cancelled:  # e.g. the session is going down
                 return Outcome("timeout", None, f"query failed: {exc}")
             reply = None  # cancelled before get() (stop, lost agent): raises instead of ending
         finally:
             self._token = None
+        if reply is None and foreign:
+            return Outcome("bad_reply", None, f"reply from session {', '.join(foreign)}, which is not "
+                                              f"the agent's (no {self.keys.agent_sessions} token)")
         if reply is None:
             return self._no_reply(time.monotonic() - started)
         try:
@@ -166,6 +192,21 @@ class AgentLink:
             return Outcome("bad_reply", None, f"reply for {result.episode_id}/{result.task}, "
                                               f"asked {request.episode_id}/{request.task}")
         return Outcome(result.status, result, result.detail)
+
+    def _agent_reply(self, replies, foreign: list[str]) -> zenoh.Reply | None:  # noqa: ANN001
+        """The first reply from an agent session (or Zenoh's own error, which has no replier);
+        the ids of other repliers go to ``foreign``."""
+        for reply in replies:
+            source = reply.replier_id
+            if source is None:
+                return reply  # Zenoh's own (timeout) error
+            zid = str(source.zid)
+            with self._change:
+                known = zid in self._sessions
+            if known:
+                return reply
+            foreign.append(zid)
+        return None
 
     def _no_reply(self, elapsed: float) -> Outcome:
         if self._stop.is_set():

@@ -3,6 +3,8 @@
 All keys live under ``<prefix>/<robot>`` (default prefix ``ersac``)::
 
     ersac/<robot>/agent/alive        liveliness token declared by the agent
+    ersac/<robot>/agent/session/<zid> liveliness token of the agent's session (its Zenoh id):
+                                     the learner accepts episode replies from these only
     ersac/<robot>/episode/run        queryable (agent): EpisodeRequest -> EpisodeResult | ErrorReply
     ersac/<robot>/episode/done       publication (agent): EpisodeDone
     ersac/<robot>/learner/state      queryable (learner): -> LearnerState
@@ -106,6 +108,17 @@ class KeySpace:
     def agent_alive(self) -> str:
         """Liveliness token of the agent."""
         return self._key("agent_alive")
+
+    def agent_session(self, zid: Any) -> str:
+        """Liveliness token naming the agent's Zenoh session id (``str(session.info.zid())``),
+        declared next to :attr:`agent_alive`: an episode reply whose replier is not such a
+        session is not the agent's."""
+        return f"{self.root}/agent/session/{validate_chunk(str(zid), 'session id')}"
+
+    @property
+    def agent_sessions(self) -> str:
+        """``<root>/agent/session/*``: the agent session tokens (the learner subscribes)."""
+        return f"{self.root}/agent/session/*"
 
     @property
     def agent_go(self) -> str:

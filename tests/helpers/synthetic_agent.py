@@ -70,12 +70,16 @@ class SyntheticAgent:
             (like the real agent refusing a spline outside the joint limits).
         huge_cost_at: episode indices whose ``body_acc_sq`` is 1e200 (a valid but absurd
             reading: no critic can fit a neighbourhood that holds it).
+        rogue: a forger: no liveliness tokens, every request answered at once with schema-valid
+            zero costs.
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, delay_s: float = 0.0,
                  fault_every: int = 0, always_fault: bool = False,
-                 refuse_above: float = math.inf, huge_cost_at: tuple[int, ...] = ()) -> None:
+                 refuse_above: float = math.inf, huge_cost_at: tuple[int, ...] = (),
+                 rogue: bool = False) -> None:
         self.keys = keys
+        self.rogue = rogue
         self.huge_cost_at = set(huge_cost_at)
         self.refuse_above = refuse_above
         self.always_fault = always_fault
@@ -84,7 +88,9 @@ class SyntheticAgent:
         self.requests: list[EpisodeRequest] = []
         self._lock = threading.Lock()
         self._closed = threading.Event()
-        self._token = session.liveliness().declare_token(keys.agent_alive)
+        self._tokens = [] if rogue else [
+            session.liveliness().declare_token(keys.agent_session(session.info.zid())),
+            session.liveliness().declare_token(keys.agent_alive)]
         self._done = session.declare_publisher(keys.episode_done)
         self._queryable = session.declare_queryable(keys.episode_run, self._on_query)
 
@@ -93,6 +99,11 @@ class SyntheticAgent:
             request = EpisodeRequest.from_json(query.payload if query.payload is not None else b"")
         except PayloadError as exc:
             query.reply_err(ErrorReply.from_exception(exc).to_json())
+            return
+        if self.rogue:
+            zero = {name: 0.0 for name in request.spec.term_names}
+            query.reply(query.key_expr, EpisodeResult(request.episode_id, request.task, "ok", zero,
+                                                      0.0).to_json())
             return
         if request.theta[0] > self.refuse_above:
             query.reply_err(ErrorReply("invalid_request", f"theta[0] = {request.theta[0]!r} above the "
@@ -131,7 +142,7 @@ class SyntheticAgent:
 
     def close(self) -> None:
         self._closed.set()
-        for entity in (self._queryable, self._done, self._token):
+        for entity in (self._queryable, self._done, *self._tokens):
             try:
                 entity.undeclare()
             except Exception:  # noqa: BLE001 - session already closed

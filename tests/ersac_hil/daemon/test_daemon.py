@@ -281,3 +281,36 @@ def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp
         (run,) = store.runs()
         assert [a.status for a in store.attempts(run.run_id)] == ["interrupted"], out
         assert run.status == "running"  # resumable
+
+
+# --------------------------------------------------------------------------- reply source
+def test_a_rogue_episode_queryable_never_feeds_the_learner(router, agent_factory, daemon_factory):
+    """A second episode/run queryable answering schema-valid zero costs (the forgery of issue
+    11) next to the real agent: the daemon takes only replies from the agent's session."""
+    agent_factory("forged", delay_s=0.05)
+    agent_factory("forged", rogue=True)  # answers first, with zero costs, holds no token
+    daemon = daemon_factory("forged", episodes=4)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    with Store(daemon.config.db, readonly=True) as store:
+        ok = store.ok_episodes(daemon.learning.run_id)
+    assert len(ok) == 4 and all(e.cost_terms["body_acc_sq"] > 0 for e in ok)
+
+
+def test_replies_only_from_a_session_without_agent_token_are_bad_replies(router, agent_factory,
+                                                                          daemon_factory):
+    impostor = router.open_client()  # holds the agent's presence tokens for the wrong session
+    keys = KeySpace("impostor")
+    tokens = [impostor.liveliness().declare_token(keys.agent_alive),
+              impostor.liveliness().declare_token(keys.agent_session(impostor.info.zid()))]
+    try:
+        agent_factory("impostor", rogue=True)
+        daemon = daemon_factory("impostor", episodes=2, max_attempts=2)
+        assert daemon.finished.wait(60) and daemon.exit_code == EXIT_FAILED
+        with Store(daemon.config.db, readonly=True) as store:
+            bad = store.attempts(daemon.learning.run_id, "bad_reply")
+            assert not store.ok_episodes(daemon.learning.run_id)
+        assert len(bad) == 2 and all("not the agent's" in e.detail for e in bad)
+    finally:
+        for token in tokens:
+            token.undeclare()
+        impostor.close()
