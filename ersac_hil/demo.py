@@ -13,11 +13,19 @@ and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
 The daemon's progress lines are shown as they come; every child's output is kept in
 ``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
 written to ``OUT`` and its location printed.
+
+``--secure``: ``ersac-hil certs init OUT/certs`` first; the router listens on
+``tls/127.0.0.1:P`` with client certificates and the roles' access control, and every child
+connects with its role's config (``--zenoh-config OUT/certs/<role>.json5``).
+``OUT/stack.json`` says where the router is and which config each role uses, so a person or a
+program can attach (e.g. ``ersac-hil state --zenoh-config OUT/certs/observer.json5``).
+``--linger`` keeps the whole stack up after the report until Ctrl-C.
 """
 from __future__ import annotations
 
 import argparse
 import ctypes
+import json
 import os
 import re
 import signal
@@ -92,6 +100,11 @@ class Child:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
+    def lines(self) -> list[str]:
+        """The output lines so far."""
+        with self._cond:
+            return list(self._lines)
+
     def wait_for(self, pattern: str, timeout_s: float, stop: threading.Event | None = None) -> re.Match:
         """Wait for an output line matching ``pattern``; raise ChildFailed on exit/timeout."""
         regex = re.compile(pattern)
@@ -149,6 +162,11 @@ class DemoConfig:
         out: report directory (holds the store ``demo.db`` and ``logs/``).
         robot: robot name.
         extra_daemon_args: appended to the daemon's command line.
+        secure: TLS with client certificates and access control (certificates in OUT/certs).
+        linger: keep the stack up after the report until stopped.
+        router_host: loopback address the router listens on.
+        daemon_host, agent_host: loopback source addresses of the daemon's and the agent's
+            Zenoh links (``#bind=``), to put them on other addresses than the router.
     """
 
     task: str = "bracing"
@@ -158,6 +176,11 @@ class DemoConfig:
     out: Path = Path("demo-report")
     robot: str = "ubot1"
     extra_daemon_args: tuple[str, ...] = ()
+    secure: bool = False
+    linger: bool = False
+    router_host: str = "127.0.0.1"
+    daemon_host: str | None = None
+    agent_host: str | None = None
 
 
 def _cli(*args: str) -> list[str]:
@@ -185,8 +208,19 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
     env = _env()
     children: list[Child] = []
     started = time.monotonic()
-    zport, cport = free_tcp_port(), free_tcp_port()
-    endpoint, channel = f"tcp/127.0.0.1:{zport}", f"ws://127.0.0.1:{cport}/"
+    zport, cport = free_tcp_port(config.router_host), free_tcp_port()
+    scheme = "tls" if config.secure else "tcp"
+    endpoint, channel = f"{scheme}/{config.router_host}:{zport}", f"ws://127.0.0.1:{cport}/"
+    roles: dict[str, str] = {}
+    if config.secure:
+        from ersac_hil.certs import init_certs
+        made = init_certs(out / "certs", router=(endpoint,), force=True)
+        roles = {role: str(path) for role, path in made.configs.items()}
+
+    def zenoh_args(role: str, bind: str | None = None) -> list[str]:
+        ep = endpoint if bind is None or role == "router" else f"{endpoint}#bind={bind}:0"
+        return ["--zenoh", ep, *(["--zenoh-config", roles[role]] if roles else [])]
+
     code = 1
     try:
         def launch(name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
@@ -194,21 +228,29 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
             children.append(child)
             return child
 
-        say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}; "
-            f"logs in {logs}")
-        launch("router", _cli("router", "--port", str(zport))).wait_for(r"Zenoh router: ", 20, stop)
+        say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}"
+            f"{', TLS + access control' if config.secure else ''}; logs in {logs}")
+        launch("router", _cli("router", *zenoh_args("router"))).wait_for(r"Zenoh router: ", 20, stop)
         launch("hub", _cli("bus", "--port", str(cport))).wait_for(r"CAN hub: ws://", 20, stop)
         bus = ["--bus-interface", "remote", "--bus-channel", channel]
         sim = launch("sim", _cli("sim", *bus, "--seed", str(config.seed)))
-        agent = launch("agent", _cli("agent", "--robot", config.robot, *bus, "--zenoh", endpoint))
+        agent = launch("agent", _cli("agent", "--robot", config.robot, *bus,
+                                     *zenoh_args("agent", config.agent_host)))
         say(f"demo: router {endpoint}, CAN hub {channel}")
         daemon = launch("daemon", _cli(
             "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
-            "--episodes", str(config.episodes), "--seed", str(config.seed), "--zenoh", endpoint,
-            "--db", str(db), "--new", "--agent-wait", "120", *config.extra_daemon_args),
+            "--episodes", str(config.episodes), "--seed", str(config.seed),
+            *zenoh_args("daemon", config.daemon_host), "--db", str(db), "--new", "--agent-wait", "120",
+            *(["--linger"] if config.linger else []), *config.extra_daemon_args),
             echo=lambda line: say(f"  {line}"))
+        stack = {"secure": config.secure, "router": endpoint, "robot": config.robot, "prefix": "ersac",
+                 "can": channel, "db": str(db), "ca": str(out / "certs" / "ca.crt") if roles else None,
+                 "configs": roles, "pids": {c.name: c.pid for c in children}}
+        (out / "stack.json").write_text(json.dumps(stack, indent=2) + "\n")
         say("demo: children " + " ".join(f"{c.name}={c.pid}" for c in children))
-        while daemon.alive() and not stop.is_set():
+        finished = re.compile(r"run \S+ (finished|failed)")
+        while daemon.alive() and not stop.is_set() and not (
+                config.linger and any(finished.search(line) for line in daemon.lines())):
             for child in (sim, agent):
                 if not child.alive():
                     raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; "
@@ -218,8 +260,11 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
             say("demo: interrupted, stopping everything")
             code = 130
             return code
-        code = daemon.proc.wait()
-        daemon.stop()
+        if config.linger and daemon.alive():
+            code = 0
+        else:
+            code = daemon.proc.wait()
+            daemon.stop()
         if code != 0:
             say(f"demo: the daemon exited with {code}; see {daemon.log_path}")
         from ersac_hil.daemon.report import write_report
@@ -236,6 +281,14 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
             f"{[round(t, 4) for t in summary['final_theta']]}; cost mean {cost['all']['mean']:.3f}"
             + (f", last 10 mean {last['mean']:.3f} +/- {last['std']:.3f}" if last["n"] else ""))
         say(f"demo: report in {out} ({', '.join(summary['files'])})")
+        if config.linger:
+            say(f"demo: stack up on {endpoint} (see {out / 'stack.json'}); Ctrl-C stops it")
+            while not stop.wait(0.5):
+                for child in children:
+                    if not child.alive():
+                        raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; "
+                                          f"see {child.log_path}")
+            say("demo: stopping the stack")
         return code
     except ChildFailed as exc:
         say(f"demo: {exc}")
@@ -257,7 +310,8 @@ def _demo(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot)
+        config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
+                            secure=args.secure, linger=args.linger)
         code = run_demo(config, stop, lambda line: print(line, flush=True))
     finally:
         for s, handler in previous.items():
@@ -274,4 +328,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=1, help="run and simulator seed (default 1)")
     p.add_argument("--out", default="demo-report", help="report directory (default ./demo-report)")
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
+    p.add_argument("--secure", action="store_true",
+                   help="TLS with client certificates and access control by role (certs in OUT/certs)")
+    p.add_argument("--linger", action="store_true",
+                   help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo)
