@@ -10,7 +10,8 @@ and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
     agent    ersac-hil agent --robot R --bus-interface remote --bus-channel ... --zenoh tcp/127.0.0.1:P
     daemon   ersac-hil daemon --robot R --task T --kappa K --episodes E --zenoh ... --db OUT/demo.db --new
 
-The daemon's progress lines are shown as they come; every child's output is kept in
+``Stack`` starts and stops the router and the simulator/agent pairs (``ersac-hil reproduce``
+uses it too, with several pairs). The daemon's progress lines are shown as they come; every child's output is kept in
 ``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
 written to ``OUT`` and its location printed.
 
@@ -37,7 +38,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["register", "Child", "DemoConfig", "run_demo"]
+__all__ = ["register", "Child", "ChildFailed", "DemoConfig", "Pair", "Stack", "cli_argv", "run_demo"]
 
 GRACE_S = 5.0
 _PR_SET_PDEATHSIG = 1
@@ -183,7 +184,8 @@ class DemoConfig:
     agent_host: str | None = None
 
 
-def _cli(*args: str) -> list[str]:
+def cli_argv(*args: str) -> list[str]:
+    """``python -m ersac_hil.cli ARGS`` with this interpreter."""
     return [sys.executable, "-m", "ersac_hil.cli", *args]
 
 
@@ -195,66 +197,138 @@ def _env() -> dict[str, str]:
     return env
 
 
+@dataclass(frozen=True)
+class Pair:
+    """One simulator/agent pair on its own loopback CAN hub; its agent serves ``robot`` under
+    the key prefix ``prefix`` (several pairs: one prefix each, so a run of robot ``robot``
+    can go to any of them)."""
+
+    robot: str
+    prefix: str
+    channel: str
+    sim: Child
+    agent: Child
+
+
+class Stack:
+    """The router and ``pairs`` simulator/agent pairs as child processes (the robot side of
+    ``ersac-hil demo`` and ``ersac-hil reproduce``); :meth:`launch` adds more children (daemons),
+    :meth:`close` stops every child in reverse order.
+
+    Args:
+        logs: directory of the children's ``<name>.log`` (certificates go next to it).
+        stop: set to interrupt waits (Ctrl-C).
+        say: progress lines.
+        robot: the robot name every agent serves.
+        seed: base seed of the simulators.
+        pairs: number of simulator/agent pairs (pair k > 1: prefix ``ersac<k>``).
+        secure: TLS with client certificates and the roles' access control
+            (``ersac-hil certs init <logs>/../certs``); ``zenoh_args(role)`` gives each role's flags.
+        router_host: loopback address the router listens on.
+        agent_host: loopback source address of the agents' Zenoh links (``#bind=``).
+    """
+
+    def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
+                 robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
+                 router_host: str = "127.0.0.1", agent_host: str | None = None) -> None:
+        from ersac_hil.zenoh_session import free_tcp_port
+
+        self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
+        self.env = _env()
+        self.children: list[Child] = []
+        self.pairs: list[Pair] = []
+        self.endpoint = f"{'tls' if secure else 'tcp'}/{router_host}:{free_tcp_port(router_host)}"
+        self.roles: dict[str, str] = {}
+        self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
+        logs.mkdir(parents=True, exist_ok=True)
+
+    def zenoh_args(self, role: str, bind: str | None = None) -> list[str]:
+        """``--zenoh`` (and with ``secure``, ``--zenoh-config``) of a child in ``role``."""
+        ep = self.endpoint if bind is None or role == "router" else f"{self.endpoint}#bind={bind}:0"
+        return ["--zenoh", ep, *(["--zenoh-config", self.roles[role]] if self.roles else [])]
+
+    def launch(self, name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
+        child = Child(name, argv, self.logs, self.env, echo)
+        self.children.append(child)
+        return child
+
+    def start(self) -> Stack:
+        """Certificates (secure), router, then per pair: hub, simulator, agent. Raises ``ChildFailed``."""
+        from ersac_hil.zenoh_session import free_tcp_port
+
+        if self._secure:
+            from ersac_hil.certs import init_certs
+            made = init_certs(self.logs.parent / "certs", router=(self.endpoint,), force=True)
+            self.roles = {role: str(path) for role, path in made.configs.items()}
+        self.launch("router", cli_argv("router", *self.zenoh_args("router"))).wait_for(
+            r"Zenoh router: ", 20, self.stop)
+        for k in range(1, self._n + 1):
+            tag = "" if self._n == 1 else str(k)
+            hub_port = free_tcp_port()
+            channel = f"ws://127.0.0.1:{hub_port}/"
+            self.launch(f"hub{tag}", cli_argv("bus", "--port", str(hub_port))).wait_for(
+                r"CAN hub: ws://", 20, self.stop)
+            bus = ["--bus-interface", "remote", "--bus-channel", channel]
+            prefix = "ersac" if k == 1 else f"ersac{k}"
+            sim = self.launch(f"sim{tag}", cli_argv("sim", *bus, "--seed", str(self._seed + k - 1)))
+            agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", self.robot, "--prefix", prefix,
+                                                        *bus, *self.zenoh_args("agent", self._agent_host)))
+            self.pairs.append(Pair(self.robot, prefix, channel, sim, agent))
+        return self
+
+    def check(self, children: Sequence[Child] | None = None) -> None:
+        """``ChildFailed`` if a simulator or an agent (or one of ``children``) has exited."""
+        watched = [c for p in self.pairs for c in (p.sim, p.agent)] if children is None else children
+        for child in watched:
+            if not child.alive():
+                raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; see {child.log_path}")
+
+    def close(self) -> None:
+        """Stop every child, newest first; report unexpected exit codes."""
+        for child in reversed(self.children):
+            rc = child.stop()
+            if rc not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM, 128 + signal.SIGINT):
+                self.say(f"{child.name} exited with {rc} (log {child.log_path})")
+        self.children = []
+
+    def __enter__(self) -> Stack:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], None] = print) -> int:
     """Run the demo until done or ``stop`` is set; always stops every child. Returns an exit code."""
-    from ersac_hil.zenoh_session import free_tcp_port
-
     out = config.out.resolve()
-    logs = out / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
     db = out / "demo.db"
     for stale in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
         stale.unlink(missing_ok=True)
-    env = _env()
-    children: list[Child] = []
     started = time.monotonic()
-    zport, cport = free_tcp_port(config.router_host), free_tcp_port()
-    scheme = "tls" if config.secure else "tcp"
-    endpoint, channel = f"{scheme}/{config.router_host}:{zport}", f"ws://127.0.0.1:{cport}/"
-    roles: dict[str, str] = {}
-    if config.secure:
-        from ersac_hil.certs import init_certs
-        made = init_certs(out / "certs", router=(endpoint,), force=True)
-        roles = {role: str(path) for role, path in made.configs.items()}
-
-    def zenoh_args(role: str, bind: str | None = None) -> list[str]:
-        ep = endpoint if bind is None or role == "router" else f"{endpoint}#bind={bind}:0"
-        return ["--zenoh", ep, *(["--zenoh-config", roles[role]] if roles else [])]
-
+    stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
+                  secure=config.secure, router_host=config.router_host, agent_host=config.agent_host)
     code = 1
     try:
-        def launch(name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
-            child = Child(name, argv, logs, env, echo)
-            children.append(child)
-            return child
-
         say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}"
-            f"{', TLS + access control' if config.secure else ''}; logs in {logs}")
-        launch("router", _cli("router", *zenoh_args("router"))).wait_for(r"Zenoh router: ", 20, stop)
-        launch("hub", _cli("bus", "--port", str(cport))).wait_for(r"CAN hub: ws://", 20, stop)
-        bus = ["--bus-interface", "remote", "--bus-channel", channel]
-        sim = launch("sim", _cli("sim", *bus, "--seed", str(config.seed)))
-        agent = launch("agent", _cli("agent", "--robot", config.robot, *bus,
-                                     *zenoh_args("agent", config.agent_host)))
-        say(f"demo: router {endpoint}, CAN hub {channel}")
-        daemon = launch("daemon", _cli(
+            f"{', TLS + access control' if config.secure else ''}; logs in {stack.logs}")
+        stack.start()
+        endpoint, (pair,) = stack.endpoint, stack.pairs
+        say(f"demo: router {endpoint}, CAN hub {pair.channel}")
+        daemon = stack.launch("daemon", cli_argv(
             "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
             "--episodes", str(config.episodes), "--seed", str(config.seed),
-            *zenoh_args("daemon", config.daemon_host), "--db", str(db), "--new", "--agent-wait", "120",
+            *stack.zenoh_args("daemon", config.daemon_host), "--db", str(db), "--new", "--agent-wait", "120",
             *(["--linger"] if config.linger else []), *config.extra_daemon_args),
             echo=lambda line: say(f"  {line}"))
-        stack = {"secure": config.secure, "router": endpoint, "robot": config.robot, "prefix": "ersac",
-                 "can": channel, "db": str(db), "ca": str(out / "certs" / "ca.crt") if roles else None,
-                 "configs": roles, "pids": {c.name: c.pid for c in children}}
-        (out / "stack.json").write_text(json.dumps(stack, indent=2) + "\n")
-        say("demo: children " + " ".join(f"{c.name}={c.pid}" for c in children))
+        info = {"secure": config.secure, "router": endpoint, "robot": config.robot, "prefix": pair.prefix,
+                "can": pair.channel, "db": str(db), "ca": str(out / "certs" / "ca.crt") if stack.roles else None,
+                "configs": stack.roles, "pids": {c.name: c.pid for c in stack.children}}
+        (out / "stack.json").write_text(json.dumps(info, indent=2) + "\n")
+        say("demo: children " + " ".join(f"{c.name}={c.pid}" for c in stack.children))
         finished = re.compile(r"run \S+ (finished|failed)")
         while daemon.alive() and not stop.is_set() and not (
                 config.linger and any(finished.search(line) for line in daemon.lines())):
-            for child in (sim, agent):
-                if not child.alive():
-                    raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; "
-                                      f"see {child.log_path}")
+            stack.check()
             time.sleep(0.2)
         if stop.is_set():
             say("demo: interrupted, stopping everything")
@@ -284,20 +358,14 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         if config.linger:
             say(f"demo: stack up on {endpoint} (see {out / 'stack.json'}); Ctrl-C stops it")
             while not stop.wait(0.5):
-                for child in children:
-                    if not child.alive():
-                        raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; "
-                                          f"see {child.log_path}")
+                stack.check(stack.children)
             say("demo: stopping the stack")
         return code
     except ChildFailed as exc:
         say(f"demo: {exc}")
         return 130 if stop.is_set() else 1
     finally:
-        for child in reversed(children):
-            rc = child.stop()
-            if rc not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM, 128 + signal.SIGINT):
-                say(f"demo: {child.name} exited with {rc} (log {child.log_path})")
+        stack.close()
 
 
 def _demo(args: argparse.Namespace) -> int:

@@ -1,0 +1,170 @@
+"""``ersac-hil reproduce`` (picked up by ``ersac_hil.cli``): argument parsing, the stack's
+lifetime, the experiments in order, the analysis and the results files.
+
+Exit codes: 0 done (whether or not the targets are met: results.md says), 1 a job failed (the
+run stays resumable), 2 invalid arguments or an output directory made with other sizes,
+128+N after signal N (resumable).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+
+__all__ = ["register", "run_reproduce"]
+
+EXPERIMENTS = ("bracing", "lifting", "contexts")
+
+
+def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # noqa: ANN001
+    """(total episodes, a function counting the episodes done so far) of ``experiments``."""
+    from . import bracing, contexts, lifting, plan
+    from .runner import stored_run
+
+    runs, context_runs, trials = [], [], 0
+    if "bracing" in experiments:
+        specs, _ = bracing.total(sizes)
+        trials += len({s.key for s in specs})
+        runs += plan.bracing_runs(sizes)
+    if "lifting" in experiments or "contexts" in experiments:
+        runs += plan.lifting_runs(sizes) if "lifting" in experiments else plan.lifting_runs(sizes)[:1]
+    if "lifting" in experiments:
+        trials += 3 * sizes.test_trials * sizes.lifting_seeds
+    if "contexts" in experiments:
+        context_runs = [spec for _, spec in plan.context_runs(sizes)]
+        trials += len(context_runs) * sizes.test_trials * (2 if "lifting" in experiments else 3)
+    total = trials + sum(r.episodes for r in runs) + len(context_runs) * sizes.context_episodes
+
+    def count() -> int:
+        from .trials import TrialStore
+        done = 0
+        with TrialStore(out / "trials.db") as store:
+            done += store.count()
+        for r in runs:
+            found = stored_run(r.db(out))
+            done += found[1] if found else 0
+        for r in context_runs:
+            found = stored_run(r.db(out))
+            done += max(0, found[1] - sizes.lifting_episodes) if found else 0
+        return done
+    return total, count
+
+
+def _check_plan(out: Path, meta: dict) -> str | None:
+    """An error if ``out`` was made with other sizes, else ``None`` (and ``plan.json`` written)."""
+    path = out / "plan.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old.get("sizes") != json.loads(json.dumps(meta["sizes"])):
+            return (f"{out} holds a reproduce run with other sizes ({old.get('sizes')}); "
+                    "use another --out, or the same --seeds/--quick to resume it")
+    path.write_text(json.dumps(meta, indent=1) + "\n")
+    return None
+
+
+def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading.Event,  # noqa: ANN001
+                  say: Callable[[str], None] = print, quick: bool = False) -> int:
+    """Run ``experiment`` (or ``all``), analyse, write the results. Returns an exit code."""
+    from ersac_hil.daemon.agents import Stopped
+    from ersac_hil.demo import ChildFailed, Stack
+
+    from . import bracing, contexts, lifting, results
+    from .runner import JobFailed, Pool, Progress
+    from .trials import TrialStore
+
+    modules = {"bracing": bracing, "lifting": lifting, "contexts": contexts}
+    experiments = EXPERIMENTS if experiment == "all" else (experiment,)
+    out = out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"sizes": asdict(sizes), "quick": quick}
+    error = _check_plan(out, meta)
+    if error:
+        say(f"ersac-hil reproduce: {error}")
+        return 2
+    report = results.load(out)
+    timing = report.get("meta", {}).get("timing", {})
+    total, count = _count(out, sizes, experiments)
+    say(f"reproduce {experiment}: {total} episodes to have ({count()} already stored) on {pairs} "
+        f"simulator/agent pair(s); output in {out}")
+    stack = Stack(out / "logs", stop, lambda line: say(f"reproduce: {line}"), pairs=pairs)
+    trials = TrialStore(out / "trials.db")
+    pool = Pool(stack, trials, stop, say)
+    try:
+        with Progress(total, count, pool):
+            for name in experiments:
+                load0, t0 = os.getloadavg()[0], time.monotonic()
+                modules[name].execute(pool, sizes, out)
+                timing[name] = {"wall_s": time.monotonic() - t0, "load_start": load0,
+                                "load_end": os.getloadavg()[0]}
+    except (Stopped, ChildFailed) as exc:
+        if stop.is_set():
+            say("reproduce: interrupted; run the same command again to resume")
+            return 130
+        say(f"reproduce: {exc}")
+        return 1
+    except JobFailed as exc:
+        say(f"reproduce: {exc}; run the same command again to resume")
+        return 1
+    finally:
+        pool.close()
+        stack.close()
+    say("reproduce: all episodes done; analysing")
+    try:
+        for name in experiments:
+            report[name] = modules[name].analyse(sizes, out, trials, say)
+    finally:
+        trials.close()
+    report["meta"] = {**meta, "pairs": pairs, "timing": timing}
+    results.save(out, report)
+    met = [t for t in report["targets"] if t["met"]]
+    say(f"reproduce: {len(met)}/{len(report['targets'])} targets met; {out / 'results.md'}")
+    return 0
+
+
+def _main(args: argparse.Namespace) -> int:
+    from .plan import FULL, QUICK
+
+    if args.seeds is not None and args.seeds < 1:
+        print("ersac-hil reproduce: --seeds must be >= 1", file=sys.stderr)
+        return 2
+    if args.pairs < 1:
+        print("ersac-hil reproduce: --pairs must be >= 1", file=sys.stderr)
+        return 2
+    sizes = (QUICK if args.quick else FULL).with_seeds(args.seeds)
+    stop = threading.Event()
+    received: list[int] = []
+
+    def on_signal(signum, frame) -> None:  # noqa: ANN001
+        received.append(signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        code = run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
+                             lambda line: print(line, flush=True), args.quick)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return 128 + received[0] if received else code
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``reproduce`` to the ``ersac-hil`` parser."""
+    p = sub.add_parser("reproduce", help="the paper's experiments through the real stack; figures and results",
+                       description="The paper's experiments (Figs. 1, 2, 4, 6 and their statistics) through the "
+                       "real stack: router, CAN hub, simulator, agent, daemon; resumable.")
+    p.add_argument("experiment", choices=(*EXPERIMENTS, "all"))
+    p.add_argument("--seeds", type=int, default=None,
+                   help="run seeds of bracing and lifting (default: bracing 10, lifting 5)")
+    p.add_argument("--quick", action="store_true", help="a tiny variant of every experiment (smoke test)")
+    p.add_argument("--out", default="reproduce-results", help="output directory (default ./reproduce-results)")
+    p.add_argument("--pairs", type=int, default=1,
+                   help="simulator/agent pairs run in parallel (default 1; one core each)")
+    p.set_defaults(func=_main)

@@ -1,0 +1,99 @@
+"""``ersac-hil reproduce bracing --quick`` end to end through every real process: interrupted
+with Ctrl-C (no child left, exit 130), run again (it resumes: the stored episodes are not run
+again), then the results files exist and parse, and the figures are PNGs."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ersac_hil.daemon.store import Store
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+PNG = b"\x89PNG\r\n\x1a\n"
+
+pytestmark = pytest.mark.slow
+
+
+def _reproduce(out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "reproduce", "bracing", "--quick",
+                             "--out", str(out)], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+
+def _ours(out: Path) -> list[int]:
+    """Processes still running with ``out`` on their command line (the daemons) or children of
+    the stack the output names."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                if str(out).encode() in (proc / "cmdline").read_bytes():
+                    pids.append(int(proc.name))
+            except OSError:
+                pass
+    return pids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
+    out = tmp_path / "results"
+    proc = _reproduce(out)
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        deadline = time.monotonic() + 180
+        for line in proc.stdout:  # wait until a few episodes are stored
+            lines.append(line)
+            if re.search(r"\] ([3-9]|\d\d)/\d+ episodes", line):
+                break
+            assert time.monotonic() < deadline, "".join(lines)
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    first = "".join(lines) + rest
+    assert proc.returncode == 130 and "interrupted" in first, first
+    children = dict(item.split("=") for item in re.search(r"children (.*)$", first, re.M).group(1).split())
+    assert not [p for p in map(int, children.values()) if _alive(p)] and not _ours(out), first
+    stored = int(re.findall(r"\] (\d+)/\d+ episodes", first)[-1])
+
+    proc = _reproduce(out)
+    try:
+        second, _ = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, second
+    match = re.search(r"(\d+) episodes to have \((\d+) already stored\)", second)
+    assert match and int(match.group(2)) >= stored > 0, second
+    assert not _ours(out)
+
+    results = json.loads((out / "results.json").read_text())
+    bracing = results["bracing"]
+    assert len(bracing["final_theta"]["kappa_2"]) == len(bracing["final_theta"]["kappa_0"]) == 1
+    assert bracing["landscape"]["episodes_per_theta"] == 2 and len(bracing["landscape"]["rows"]) == 2
+    assert {t["target"].split(":")[0] for t in results["targets"]} >= {"landscape", "bracing"}
+    assert "| run seed |" in (out / "results.md").read_text()
+    for name in ("bracing_landscape.png", "bracing_runs.png", "fig1_critic.png", "fig2_critic.png"):
+        assert (out / name).read_bytes()[:8] == PNG, name
+    for kappa in ("2", "0"):
+        with Store(out / "runs" / f"bracing-k{kappa}-s1.db", readonly=True) as store:
+            (run,) = store.runs()
+            assert run.status == "finished" and len(store.ok_episodes(run.run_id)) == 6
+            assert run.settings["eta"] == 0.7 and run.settings["sigma"] == [0.05]  # the paper's
