@@ -196,7 +196,7 @@ class Pool:
         pair = worker.pair
         argv = cli_argv("daemon", "--robot", pair.robot, "--prefix", pair.prefix, "--task", spec.task,
                     "--kappa", repr(spec.kappa), "--seed", str(spec.seed), "--episodes", str(spec.episodes),
-                    "--zenoh", self.stack.endpoint, "--db", str(db), "--agent-wait", "600",
+                    *self.stack.zenoh_args("daemon"), "--db", str(db), "--agent-wait", "600",
                     "--max-attempts", "20", "--episode-timeout", repr(EPISODE_TIMEOUT_S), *flags)
         child = self.stack.launch(f"daemon-{spec.name}", argv)
         try:
