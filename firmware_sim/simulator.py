@@ -303,6 +303,13 @@ class Simulator:
         return AxisState(float(d.qpos[idx.qpos[i]]), float(d.qvel[idx.dof[i]]),
                          float(self._current[i]), float(self._voltage[i]))
 
+    def axis_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, current and voltage of every axis, each shape ``(7,)`` in
+        ``AXES`` order (the same values as :meth:`axis`, for the telemetry hot path)."""
+        rig = self._require()
+        d, idx = rig.physics.data, rig.physics.axes
+        return d.qpos[idx.qpos], d.qvel[idx.dof], self._current, self._voltage
+
     def axes(self) -> dict[str, AxisState]:
         """All seven axes, in ``AXES`` order."""
         return {name: self.axis(name) for name in AXES}

@@ -42,6 +42,7 @@ from protocol.can import cobid
 from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network
 from protocol.can.objects import Scale
+from protocol.can.pdo import pdo_maps, pdo_struct
 
 log = logging.getLogger(__name__)
 
@@ -99,9 +100,10 @@ class AgentBus:
         self._hb_state: dict[str, int] = {}
         self._emcy: list[EmcyEvent] = []
         self._tpdo_device: dict[int, str] = {}
-        self._rpdos: list[tuple[str, object]] = []
+        self._tpdo_keys: dict[int, tuple[tuple[int, int], ...]] = {}
+        self._rpdos: list[tuple[str, int, object, tuple[tuple[int, int], ...]]] = []
         self._pending: set[int] = set()
-        self._raw: dict[str, dict[tuple[int, int], int]] = {}
+        self._frames: dict[int, tuple[int, ...]] = {}
         self.cycles = 0
         self.overruns = 0
         self._next_sync: float | None = None
@@ -123,12 +125,18 @@ class AgentBus:
             net.subscribe(cobid.heartbeat(dev.node_id),
                           lambda can_id, data, ts, name=dev.name: self._on_heartbeat(name, data))
             self.nodes[dev.name] = node
-            for pdo_map in node.tpdo.map.values():
+            # cyclic PDOs bypass canopen's per-variable machinery: one struct per frame
+            specs = {(p.direction, p.number): p for p in pdo_maps(dev)}
+            for number, pdo_map in node.tpdo.map.items():
                 if pdo_map.enabled and pdo_map.trans_type and 1 <= pdo_map.trans_type <= 240:
+                    spec = specs[("tpdo", number)]
+                    net.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
+                    net.subscribe(pdo_map.cob_id, self._tpdo_handler(pdo_map.cob_id, spec))
                     self._tpdo_device[pdo_map.cob_id] = dev.name
-                    pdo_map.add_callback(self._on_tpdo)
+                    self._tpdo_keys[pdo_map.cob_id] = spec.keys
             if dev in ACTUATED:
-                self._rpdos += [(dev.name, m) for m in node.rpdo.map.values() if m.enabled]
+                self._rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
+                                for n, m in node.rpdo.map.items() if m.enabled]
         self._heartbeat = HeartbeatProducer(net).start()
         return self
 
@@ -273,16 +281,21 @@ class AgentBus:
         return scale.from_raw(raw) if scale is not None else raw
 
     # -- the SYNC cycle ---------------------------------------------------------------------
-    def _on_tpdo(self, pdo_map) -> None:
-        with self._cond:
-            if pdo_map.cob_id not in self._pending:
+    def _tpdo_handler(self, cob_id: int, spec):  # noqa: ANN001, ANN202
+        layout = pdo_struct(spec)
+        unpack, size, cond, pending, frames = layout.unpack_from, layout.size, self._cond, self._pending, self._frames
+
+        def on_frame(can_id, data, timestamp) -> None:
+            if len(data) < size:
                 return
-            values = self._raw[self._tpdo_device[pdo_map.cob_id]]
-            for var in pdo_map.map:
-                values[(var.index, var.subindex)] = var.raw
-            self._pending.discard(pdo_map.cob_id)
-            if not self._pending:
-                self._cond.notify_all()
+            with cond:
+                if cob_id not in pending:
+                    return
+                frames[cob_id] = unpack(data)
+                pending.discard(cob_id)
+                if not pending:
+                    cond.notify_all()
+        return on_frame
 
     def reset_pacing(self) -> None:
         """Forget the real-time schedule (the next cycle starts a new one)."""
@@ -306,14 +319,12 @@ class AgentBus:
         with self._cond:
             self.cycles += 1
             cycle = self.cycles
-            self._pending = set(self._tpdo_device)
-            self._raw = {name: {} for name in set(self._tpdo_device.values())}
+            self._pending.update(self._tpdo_device)
+            self._frames.clear()
         try:
-            for name, pdo_map in self._rpdos:
+            for name, cob_id, layout, keys in self._rpdos:
                 raw = self._last_commands.raw(name)
-                for var in pdo_map.map:
-                    var.raw = raw[(var.index, var.subindex)]
-                pdo_map.transmit()
+                net.send_message(cob_id, layout.pack(*[raw[k] for k in keys]))
             t0 = time.perf_counter()
             net.send_message(cobid.SYNC, b"")
         except (can.CanError, OSError, RuntimeError) as exc:
@@ -325,8 +336,11 @@ class AgentBus:
                 if remaining <= 0:
                     break
                 self._cond.wait(remaining)
-            missing, raw = set(self._pending), self._raw
-            self._pending = set()
+            missing = set(self._pending)
+            self._pending.clear()
+            raw: dict[str, dict[tuple[int, int], int]] = {name: {} for name in self._tpdo_device.values()}
+            for cob_id, values in self._frames.items():
+                raw[self._tpdo_device[cob_id]].update(zip(self._tpdo_keys[cob_id], values))
         latency = time.perf_counter() - t0
         if missing:
             self._raise_if_bus_down()

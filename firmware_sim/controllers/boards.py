@@ -77,6 +77,7 @@ class MotorController:
         self.name = name
         self.axes = BOARDS[name]
         self._idx = np.array([AXES.index(a) for a in self.axes])
+        self._axis_numbers = [AXES.index(a) for a in self.axes]
         self.bind(firmware)
 
     def bind(self, firmware: Firmware) -> None:
@@ -128,6 +129,13 @@ class MotorController:
         self._fw.push()
 
     # ---- status ---------------------------------------------------------------------------
+    def board_status(self) -> AxisStatus:
+        """Each status bit OR-ed over the board's axes (what the status word reports)."""
+        fw, idx = self._fw, self._axis_numbers
+        return AxisStatus(*[any([bool(flags[i]) for i in idx]) for flags in (
+            fw.enabled, fw.safe, fw.over_current, fw.current_limiting, fw.position_limited,
+            fw.spline_active, fw.spline_done, fw.disconnected)])
+
     def status(self, axis: str) -> AxisStatus:
         i = self._axis(axis)
         fw = self._fw

@@ -27,6 +27,7 @@ from canopen.sdo import SdoAbortedError
 from protocol.can import cobid
 from protocol.can.bench import AGENT_NODE_ID, Device, object_dictionary
 from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
+from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
 from protocol.can.sdo import check_range
 
 log = logging.getLogger(__name__)
@@ -135,7 +136,8 @@ class SlaveNode(canopen.LocalNode):
         self._agent_last_hb: float | None = None
         self._hb_lost = False
         self.sync_count = 0
-        self._layouts: list | None = None
+        self._layouts: list[tuple[int, int, struct.Struct, tuple[Key, ...]]] = []
+        self._rpdo_handlers: list[tuple[int, object]] = []
         self.app.attach(self)
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -143,8 +145,17 @@ class SlaveNode(canopen.LocalNode):
         network.add_node(self)
         self.tpdo.read(from_od=True)
         self.rpdo.read(from_od=True)
-        for pdo_map in self.rpdo.map.values():
-            pdo_map.add_callback(self._on_rpdo)
+        specs = {(p.direction, p.number): p for p in pdo_maps(self.device)}
+        # cyclic PDOs bypass canopen's per-variable machinery: one struct per frame
+        for number, pdo_map in self.rpdo.map.items():
+            if pdo_map.enabled and pdo_map.cob_id:
+                network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
+                handler = self._rpdo_handler(specs[("rpdo", number)])
+                network.subscribe(pdo_map.cob_id, handler)
+                self._rpdo_handlers.append((pdo_map.cob_id, handler))
+        self._layouts = [(m.cob_id, m.trans_type, pdo_struct(specs[("tpdo", n)]), specs[("tpdo", n)].keys)
+                         for n, m in self.tpdo.map.items()
+                         if m.enabled and 1 <= (m.trans_type or 0) <= 240]
         network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
         if self.own_sync:
             network.subscribe(cobid.SYNC, self._on_sync)
@@ -163,7 +174,10 @@ class SlaveNode(canopen.LocalNode):
             net.unsubscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
             if self.own_sync:
                 net.unsubscribe(cobid.SYNC, self._on_sync)
-            for pdo_map in list(self.rpdo.map.values()) + list(self.tpdo.map.values()):
+            for cob_id, handler in self._rpdo_handlers:
+                net.unsubscribe(cob_id, handler)
+            self._rpdo_handlers.clear()
+            for pdo_map in self.tpdo.map.values():
                 if pdo_map.enabled and pdo_map.cob_id:
                     net.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
             if self.id in net.nodes:
@@ -248,38 +262,33 @@ class SlaveNode(canopen.LocalNode):
         if not self.operational:
             return
         self.sync_count += 1
+        count, send = self.sync_count, self.network.send_message
         with self._lock:
             self.app.sample()
-            for cob_id, every, layout, keys in self._tpdo_layouts():
-                if self.sync_count % every == 0:
-                    data = layout.pack(*(int(self.value(*k)) for k in keys))
-                    self.network.send_message(cob_id, data)
-
-    def _tpdo_layouts(self) -> list[tuple[int, int, struct.Struct, tuple[Key, ...]]]:
-        """Packing plan of the synchronous TPDOs (COB-ID, every n-th SYNC, struct, keys),
-        compiled once from the PDO maps: canopen's per-variable encoding was the hot path."""
-        if self._layouts is None:
-            plans = []
-            for pdo_map in self.tpdo.map.values():
-                if not pdo_map.enabled or not 1 <= (pdo_map.trans_type or 0) <= 240:
-                    continue
-                fmt = "<" + "".join(v.od.STRUCT_TYPES[v.od.data_type].format.lstrip("<")
-                                    for v in pdo_map.map)
-                keys = tuple((v.index, v.subindex) for v in pdo_map.map)
-                plans.append((pdo_map.cob_id, pdo_map.trans_type, struct.Struct(fmt), keys))
-            self._layouts = plans
-        return self._layouts
+            values = self._values
+            for cob_id, every, layout, keys in self._layouts:
+                if count % every == 0:
+                    try:
+                        data = layout.pack(*[values[k] for k in keys])
+                    except KeyError:  # an object the application never set: stored data / EDS default
+                        data = layout.pack(*[int(self.value(*k)) for k in keys])
+                    send(cob_id, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         self.apply_commands()
         self.transmit_tpdos()
 
-    def _on_rpdo(self, pdo_map) -> None:
-        if not self.operational:
-            return
-        with self._lock:
-            for var in pdo_map.map:
-                self._pending[(var.index, var.subindex)] = var.raw
+    def _rpdo_handler(self, spec: PdoSpec):
+        """Receive one RPDO: unpack it whole into the pending commands (applied at SYNC)."""
+        layout, keys = pdo_struct(spec), spec.keys
+        unpack, size = layout.unpack_from, layout.size
+
+        def on_frame(can_id, data, timestamp) -> None:
+            if not self.operational or len(data) < size:
+                return
+            with self._lock:
+                self._pending.update(zip(keys, unpack(data)))
+        return on_frame
 
     # -- SDO server hooks ------------------------------------------------------------------
     def _on_sdo_read(self, index: int, subindex: int, od) -> int | None:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from canopen.sdo import SdoAbortedError
 
 from firmware_sim.controllers import ConfigRangeError, ConfigStateError, JointController
+from firmware_sim.plant import AXES
 from firmware_sim.nodes.base import Key, NodeApplication
 from protocol.can import objects as o
 from protocol.can.bench import Device
@@ -26,6 +27,12 @@ if TYPE_CHECKING:
 _ACTUAL_VALUES = frozenset({Index.POSITION, Index.VELOCITY, Index.CURRENT, Index.VOLTAGE, Index.PITCH,
                             Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
                             Index.ACCELERATION_Z})
+
+_STATUS_BITS = ((Status.OPERATION_ENABLED, "enabled"), (Status.SAFE_STATE, "safe_state"),
+                (Status.OVER_CURRENT, "over_current"), (Status.CURRENT_LIMITING, "current_limiting"),
+                (Status.POSITION_LIMIT, "position_limit"), (Status.SPLINE_ACTIVE, "spline_active"),
+                (Status.SPLINE_DONE, "spline_done"), (Status.CABLE_BROKEN, "disconnected"))
+_AXIS_INDEXES = (Index.POSITION, Index.VELOCITY, Index.CURRENT, Index.VOLTAGE)
 
 SCENARIO_NAMES = {o.Scenario.IDLE: "idle", o.Scenario.BRACING: "bracing", o.Scenario.LIFTING: "lifting"}
 
@@ -40,6 +47,7 @@ class DeviceApp(NodeApplication):
 
     def __init__(self, bench: "SimulatedBench", device: Device) -> None:
         self.bench, self.device = bench, device
+        self._axis_idx = [AXES.index(j) for j in device.joints]
         self.control = Control(0)
         self.safe = False
         self.operational = False
@@ -87,13 +95,9 @@ class DeviceApp(NodeApplication):
         board = self.board
         if board is None:
             return s | (Status.OPERATION_ENABLED if self.operational and not self.safe else Status(0))
-        bits = [board.status(a) for a in self.device.joints]
-        pairs = ((Status.OPERATION_ENABLED, "enabled"), (Status.SAFE_STATE, "safe_state"),
-                 (Status.OVER_CURRENT, "over_current"), (Status.CURRENT_LIMITING, "current_limiting"),
-                 (Status.POSITION_LIMIT, "position_limit"), (Status.SPLINE_ACTIVE, "spline_active"),
-                 (Status.SPLINE_DONE, "spline_done"), (Status.CABLE_BROKEN, "disconnected"))
-        for flag, name in pairs:
-            if any(getattr(b, name) for b in bits):
+        bits = board.board_status()
+        for flag, name in _STATUS_BITS:
+            if getattr(bits, name):
                 s |= flag
         if s & (Status.OVER_CURRENT | Status.CABLE_BROKEN):
             s |= Status.FAULT
@@ -103,12 +107,13 @@ class DeviceApp(NodeApplication):
         self.node.set_value(Index.STATUS, 0, int(self.status()))
 
     def _sample_axes(self, position_scale: o.Scale) -> None:
-        for sub, joint in enumerate(self.device.joints, start=1):
-            a = self.bench.sim.axis(joint)
-            self.node.set_value(Index.POSITION, sub, position_scale.to_raw(a.position))
-            self.node.set_value(Index.VELOCITY, sub, o.VELOCITY.to_raw(a.velocity))
-            self.node.set_value(Index.CURRENT, sub, o.CURRENT.to_raw(a.current))
-            self.node.set_value(Index.VOLTAGE, sub, o.VOLTAGE.to_raw(a.voltage))
+        arrays = self.bench.sim.axis_arrays()
+        idx = self._axis_idx
+        set_value = self.node.set_value
+        for index, scale, values in zip(_AXIS_INDEXES, (position_scale, o.VELOCITY, o.CURRENT, o.VOLTAGE),
+                                        arrays):
+            for sub, value in enumerate(values[idx].tolist(), start=1):
+                set_value(index, sub, scale.to_raw(value))
 
     def on_config(self, key: Key, value) -> None:
         try:

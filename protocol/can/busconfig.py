@@ -97,7 +97,16 @@ NOTIFIER_CYCLE_S = 0.05
 
 
 def open_network(config: BusConfig) -> canopen.Network:
-    """A connected canopen ``Network`` on a new bus (``disconnect()`` closes both)."""
-    network = canopen.Network(open_bus(config))
+    """A connected canopen ``Network`` on a new bus (``disconnect()`` closes both).
+
+    A bus that can push frames to listeners on its own receive thread (``push_notifier``,
+    e.g. CAN over Zenoh) gets no ``can.Notifier`` polling thread: one thread hand-over less
+    per frame."""
+    bus = open_bus(config)
+    network = canopen.Network(bus)
     network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-    return network.connect()
+    push = getattr(bus, "push_notifier", None)
+    if push is None:
+        return network.connect()
+    network.notifier = push(network.listeners)
+    return network

@@ -7,6 +7,7 @@ it does not wrap around); the saturation is documented per signal in docs/protoc
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from dataclasses import dataclass, replace
 
@@ -110,11 +111,11 @@ class Scale:
     bits: int = 16
     signed: bool = True
 
-    @property
+    @functools.cached_property
     def raw_min(self) -> int:
         return -(1 << (self.bits - 1)) if self.signed else 0
 
-    @property
+    @functools.cached_property
     def raw_max(self) -> int:
         return (1 << (self.bits - 1)) - 1 if self.signed else (1 << self.bits) - 1
 

@@ -3,15 +3,19 @@
 ``pdo_maps(device)`` gives every RPDO/TPDO of a device as ``PdoSpec``: its COB-ID,
 transmission type and mapped entries (index, sub-index, bit length, name). The agent, the
 simulator nodes, the bus-load budget and docs/protocol.md all derive from this.
+``pdo_struct(spec)`` is the frame layout compiled once (``struct``), what both sides pack and
+unpack cyclic PDOs with instead of canopen's per-variable encoding.
 """
 from __future__ import annotations
 
+import functools
+import struct
 from dataclasses import dataclass
 from typing import Literal
 
 from canopen.objectdictionary import ODRecord, ODVariable
 
-from protocol.can.bench import BENCH, Device, object_dictionary
+from protocol.can.bench import BENCH, Device, device, object_dictionary
 
 Direction = Literal["tpdo", "rpdo"]
 
@@ -46,6 +50,36 @@ class PdoSpec:
     def synchronous(self) -> bool:
         return 1 <= self.transmission_type <= 240
 
+    @property
+    def keys(self) -> tuple[tuple[int, int], ...]:
+        """(index, sub-index) of every mapped object, in frame order."""
+        return tuple((e.index, e.subindex) for e in self.entries)
+
+
+def _object(od, index: int, subindex: int) -> ODVariable:  # noqa: ANN001
+    entry = od[index]
+    return entry if subindex == 0 and isinstance(entry, ODVariable) else entry[subindex]
+
+
+@functools.cache
+def pdo_struct(spec: PdoSpec) -> struct.Struct:
+    """Little-endian layout of ``spec``'s frame: one field per entry, in map order, with the
+    integer type of the mapped object (``pack(*raw_values)`` / ``unpack(frame)``).
+
+    Raises:
+        ValueError: an entry that is not a whole byte-aligned integer of its object's size.
+    """
+    od = object_dictionary(device(spec.device))
+    fmt = "<"
+    for e in spec.entries:
+        var = _object(od, e.index, e.subindex)
+        field = var.STRUCT_TYPES[var.data_type].format.lstrip("<")
+        if struct.calcsize("<" + field) * 8 != e.bits:
+            raise ValueError(f"{spec.device} PDO {spec.number}: 0x{e.index:04X}:{e.subindex} maps "
+                             f"{e.bits} bits of a {field!r} object")
+        fmt += field
+    return struct.Struct(fmt)
+
 
 def _value(var: ODVariable) -> int:
     return int(var.value if var.value is not None else var.default)
@@ -64,7 +98,7 @@ def pdo_maps(dev: Device) -> tuple[PdoSpec, ...]:
             for sub in range(1, _value(mapping[0]) + 1):
                 word = _value(mapping[sub])
                 index, subindex, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
-                target = od[index] if subindex == 0 and isinstance(od[index], ODVariable) else od[index][subindex]
+                target = _object(od, index, subindex)
                 entries.append(PdoEntry(index, subindex, bits, target.name))
             specs.append(PdoSpec(dev.name, dev.node_id, direction, n + 1,
                                  _value(comm[1]) & 0x7FF, _value(comm[2]), tuple(entries)))

@@ -166,3 +166,26 @@ def test_the_bus_spans_processes(can_router):
             child.kill()
             child.wait()
         bus.shutdown()
+
+
+def test_pushed_frames_reach_listeners_in_order_until_stopped(pair):
+    """open_network's path: listeners on Zenoh's receive thread, no Notifier polling recv()."""
+    import threading
+    a, b = pair
+    got: list[int] = []
+    done = threading.Event()
+
+    def listener(msg: can.Message) -> None:
+        got.append(msg.arbitration_id)
+        if len(got) == 200:
+            done.set()
+
+    notifier = b.push_notifier([listener])
+    with pytest.raises(can.CanOperationError, match="already attached"):
+        b.push_notifier([listener])
+    for i in range(200):
+        a.send(can.Message(arbitration_id=i, data=b""))
+    assert done.wait(TIMEOUT) and got == list(range(200))
+    notifier.stop()
+    a.send(can.Message(arbitration_id=0x300, data=b""))
+    assert b.recv(TIMEOUT).arbitration_id == 0x300 and len(got) == 200  # queued for recv() again
