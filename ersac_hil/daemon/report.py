@@ -6,7 +6,8 @@ Files written to ``out`` (see :func:`write_report`):
   the critic's J~ at the policy mean and the policy mean itself per update (kappa changes
   marked); failed attempts as ticks at the bottom.
 * ``critic.png`` (1-D tasks) - the paper's Figure 2: cost observations against the executed
-  theta, the critic mean J~ with the J~ +/- 2 r~ band, F~ = J~ + kappa r~, the final theta.
+  theta (hardware damage in red), the critic mean J~ with the J~ +/- 2 r~ band,
+  F~ = J~ + kappa r~, the final theta.
 * ``telemetry.png`` - cost terms and telemetry summary figures of the first and last ok
   episodes, side by side.
 * ``summary.json`` - final theta, kappa, weights, episode and attempt counts, cost
@@ -66,6 +67,12 @@ def cost_statistics(episodes: Sequence[EpisodeRecord], window: int = 10) -> dict
     }
 
 
+def _damaged(episode: EpisodeRecord) -> bool:
+    """The episode damaged the hardware (failure flag or a damage cost term)."""
+    return (bool((episode.failures or {}).get("hardware_damage"))
+            or float((episode.cost_terms or {}).get("damage", 0.0)) > 0)
+
+
 def _running_mean(values: np.ndarray, window: int = 5) -> np.ndarray:
     out = np.empty_like(values)
     for i in range(len(values)):
@@ -81,8 +88,7 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
     idx = np.arange(1, len(episodes) + 1)
     costs = np.array([e.cost for e in episodes], dtype=float)
     if len(costs):
-        damaged = np.array([bool((e.failures or {}).get("hardware_damage")) or
-                            float((e.cost_terms or {}).get("damage", 0.0)) > 0 for e in episodes])
+        damaged = np.array([_damaged(e) for e in episodes])
         ax.plot(idx[~damaged], costs[~damaged], "o", ms=4, color="tab:blue", label="cost (ok episode)")
         if damaged.any():
             ax.plot(idx[damaged], costs[damaged], "s", ms=5, color="tab:red", label="cost (hardware damage)")
@@ -123,12 +129,15 @@ def _critic_plot(path: Path, run: RunRecord, episodes: list[EpisodeRecord], engi
     fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
     x = np.array([e.theta[0] for e in episodes])
     y = np.array([e.cost for e in episodes], dtype=float)
-    ax.plot(x, y, "o", ms=4, color="tab:blue", alpha=0.7, label="cost observations")
+    damaged = np.array([_damaged(e) for e in episodes], dtype=bool)
+    ax.plot(x[~damaged], y[~damaged], "o", ms=4, color="tab:blue", alpha=0.7, label="cost observations")
+    if damaged.any():
+        ax.plot(x[damaged], y[damaged], "o", ms=5, color="tab:red", label="hardware damage")
     ax.fill_between(grid, J - 2 * r, J + 2 * r, color="tab:green", alpha=0.2, label="J~ +/- 2 r~")
     ax.plot(grid, J, "-", color="tab:green", lw=2, label="critic mean J~")
     if kappa != 0:
         ax.plot(grid, J + kappa * r, "--", color="tab:purple", lw=1.5, label=f"F~ = J~ + {kappa:g} r~")
-    ax.axvline(final_theta[0], color="tab:red", lw=2, zorder=5, label=f"final theta = {final_theta[0]:.3f}")
+    ax.axvline(final_theta[0], color="k", lw=2, zorder=5, label=f"final theta = {final_theta[0]:.3f}")
     pad = 0.02 * (hi - lo)
     ax.set_xlim(lo - pad, hi + pad)
     ax.set_xlabel(spec.param_names[0])

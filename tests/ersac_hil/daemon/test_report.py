@@ -4,7 +4,10 @@ from __future__ import annotations
 import json
 import statistics
 
+import matplotlib.pyplot as plt
+import numpy as np
 import pytest
+from matplotlib.colors import to_rgb
 
 from ersac_hil.cli import main
 from ersac_hil.daemon.clients import LearnerClient
@@ -27,8 +30,13 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     with Store(daemon.config.db, readonly=True) as store:
-        costs = [e.cost for e in store.ok_episodes(daemon.learning.run_id)]
+        episodes = store.ok_episodes(daemon.learning.run_id)
+        costs = [e.cost for e in episodes]
         attempts = store.attempts(daemon.learning.run_id)
+    # hardware damage is red in the critic plot (the paper's Figs. 1-2), and nothing else is
+    pixels = plt.imread(out / "critic.png")[..., :3]
+    red = np.all(np.abs(pixels - np.array(to_rgb("tab:red"))) < 0.02, axis=-1).sum()
+    assert (red > 20) == any(e.failures["hardware_damage"] for e in episodes)
     assert summary["episodes"] == 15 and summary["attempts"] == len(attempts)
     assert summary["attempts_by_status"]["fault_pdo_timeout"] == len(attempts) - 15
     assert tuple(summary["final_theta"]) == final.theta and summary["kappa"] == 2.0
