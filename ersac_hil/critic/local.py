@@ -14,6 +14,10 @@ On that neighbourhood a VHGP gives, at any query point x,
              uncertainty f_var about the mean)
     F~(x) = J~(x) + kappa r~(x),  grad F~ = grad J~ + kappa r~ (grad g_mean / 2 + grad g_var / 4).
 
+With `CriticConfig.noise_model` "loglinear" (the default) g_mean and g_var in r~ come from a
+log-linear noise model fitted to the VHGP's leave-one-out residuals (critic/noise.py)
+instead of the VHGP's own g; J~ is always the VHGP's posterior mean.
+
 Fits are cached by content (neighbourhood indices, their inputs and costs): a neighbourhood
 that has not changed is never refitted, and re-weighting the costs invalidates exactly the
 fits whose costs changed.  A fit can be warm-started from another fit (`LocalFit`): kernel
@@ -31,9 +35,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import CriticInputError
+from .noise import LogLinearNoise, fit_log_linear
 from .vhgp import VHGP, VHGPHyperparameters, VHGPParams, VHGPPrediction, VHGPPredictionGradient
 
 MIN_FIT_POINTS = 3
+#: "loglinear": r~ from a log-linear noise model on the VHGP's leave-one-out residuals of a
+#: local fit (critic/noise.py); "vhgp": r~ from the VHGP's own noise process g.
+NOISE_MODELS = ("loglinear", "vhgp")
 
 
 class CriticData(Protocol):
@@ -69,6 +77,18 @@ class CriticConfig:
     0.01-0.1 and r~ = 0.004 (truth 0.1-0.5).  The sqrt(d) is because neighbour distances grow
     with sqrt(d) for the same per-input spread.
 
+    noise_model: where r~ and its slope come from in a neighbourhood fit. "loglinear"
+    (default): g = log r^2 = a + b'(x - c) fitted by MAP/Laplace to the VHGP's leave-one-out
+    residuals (critic/noise.py), slope prior std noise_slope_prior / extent per input, opened
+    up linearly from d + 1 to 5 (d + 1) points.  "vhgp": the VHGP's own g (the paper's
+    critic).  Measured with bench/critic.py on 7 problems at 30-60 points: the VHGP's g gave
+    median slope ratios 0.1-0.5 on 5 of 7 problems (the hyperparameter fit flattens g), the
+    log-linear model 0.6-1.2, with the same NLPD against a homoscedastic GP (docs/learner.md).
+    Wide selection fits (learner.selection) keep the VHGP's g.
+
+    g_variance_max, g_lengthscale_min: the other ends of the g hyperparameter boxes (equal
+    ends hold a hyperparameter fixed); measured alternatives, not used by default.
+
     cold_every: the learner's update fits are warm-started from the previous one; every
     `cold_every`-th also runs a cold fit (the two-stage recipe) and keeps whichever has the
     higher bound.  A warm chain can sit on a plateau forever: with the noise R -> 0 the
@@ -86,6 +106,10 @@ class CriticConfig:
     lengthscale_min: float = 0.25
     cold_every: int = 10
     cache_size: int = 32
+    g_variance_max: float = 50.0
+    g_lengthscale_min: float | None = None
+    noise_model: str = "loglinear"
+    noise_slope_prior: float = 10.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.epsilon) and self.epsilon > 0):
@@ -94,10 +118,16 @@ class CriticConfig:
             raise CriticInputError(f"min_neighbours must be >= {MIN_FIT_POINTS}")
         if self.max_neighbours < self.min_neighbours:
             raise CriticInputError("max_neighbours must be >= min_neighbours")
-        if not (math.isfinite(self.g_variance_min) and 0 < self.g_variance_min < 50.0):
-            raise CriticInputError("g_variance_min must be in (0, 50)")
+        if not (math.isfinite(self.g_variance_min) and 0 < self.g_variance_min <= self.g_variance_max <= 50.0):
+            raise CriticInputError("need 0 < g_variance_min <= g_variance_max <= 50")
+        if self.g_lengthscale_min is not None and not (0 < self.g_lengthscale_min <= self.g_lengthscale_max):
+            raise CriticInputError("need 0 < g_lengthscale_min <= g_lengthscale_max")
         if not (math.isfinite(self.lengthscale_min) and 0 < self.lengthscale_min < self.g_lengthscale_max):
             raise CriticInputError("need 0 < lengthscale_min < g_lengthscale_max (finite)")
+        if self.noise_model not in NOISE_MODELS:
+            raise CriticInputError(f"noise_model must be one of {NOISE_MODELS}, got {self.noise_model!r}")
+        if not (math.isfinite(self.noise_slope_prior) and self.noise_slope_prior > 0):
+            raise CriticInputError("noise_slope_prior must be finite and > 0")
         if self.cold_every < 0:
             raise CriticInputError("cold_every must be >= 0 (0: never)")
         if self.cold_iter < 0 or self.warm_iter < 0 or self.cache_size < 1:
@@ -125,6 +155,10 @@ class CriticConfig:
             "lengthscale_min": self.lengthscale_min,
             "cold_every": self.cold_every,
             "cache_size": self.cache_size,
+            "g_variance_max": self.g_variance_max,
+            "g_lengthscale_min": self.g_lengthscale_min,
+            "noise_model": self.noise_model,
+            "noise_slope_prior": self.noise_slope_prior,
         }
 
     @classmethod
@@ -162,24 +196,40 @@ class CriticEstimate:
 
 @dataclass(frozen=True, eq=False)
 class LocalFit:
-    """A VHGP fitted to the observations `ids` (sorted store indices, (n,))."""
+    """A VHGP fitted to the observations `ids` (sorted store indices, (n,)); with `noise`, the
+    noise process g (r~ and its slope) comes from that log-linear model instead."""
 
     ids: np.ndarray
     model: VHGP
     warm_started: bool = field(default=False)
+    noise: LogLinearNoise | None = None
 
     def predict(self, Xs: np.ndarray) -> VHGPPrediction:
-        return self.model.predict(Xs)
+        pred = self.model.predict(Xs)
+        if self.noise is None:
+            return pred
+        g_mean, g_var = self.noise.predict(np.atleast_2d(np.asarray(Xs, dtype=float)))
+        return VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var)
+
+    def predict_with_gradient(self, Xs: np.ndarray) -> tuple[VHGPPrediction, VHGPPredictionGradient]:
+        pred, grad = self.model.predict_with_gradient(Xs)
+        if self.noise is None:
+            return pred, grad
+        Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
+        g_mean, g_var = self.noise.predict(Xa)
+        dg_mean, dg_var = self.noise.gradient(Xa)
+        return (VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var),
+                VHGPPredictionGradient(grad.f_mean, grad.f_var, dg_mean, dg_var))
 
     def estimate(self, x: np.ndarray, kappa: float = 0.0) -> CriticEstimate:
         """J~, r~, F~ and gradients at one point x (d,)."""
         x = np.asarray(x, dtype=float).reshape(-1)
-        pred, grad = self.model.predict_with_gradient(x[None, :])
+        pred, grad = self.predict_with_gradient(x[None, :])
         return _estimate(x, pred, grad, 0, kappa, self.ids.size)
 
     def estimate_many(self, Xs: np.ndarray, kappa: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Vectorised (J~, r~, F~) at Xs (m, d), each (m,)."""
-        pred = self.model.predict(Xs)
+        pred = self.predict(Xs)
         r = pred.noise_std
         return pred.f_mean, r, pred.f_mean + kappa * r
 
@@ -291,7 +341,8 @@ class LocalCritic:
         return ids.tobytes() + self._data.points[ids].tobytes() + self._data.costs[ids].tobytes()
 
     def fit_ids(
-        self, ids: np.ndarray, warm_start: LocalFit | None = None, use_cache: bool = True, also_cold: bool = False
+        self, ids: np.ndarray, warm_start: LocalFit | None = None, use_cache: bool = True, also_cold: bool = False,
+        local: bool = True,
     ) -> LocalFit:
         """VHGP on the observations `ids` (sorted, >= 3).
 
@@ -299,6 +350,8 @@ class LocalCritic:
         the cached fit whatever the warm start; without, the result depends only on the
         data, `warm_start` and `also_cold` (what the learner's update path needs for exact
         resume).  also_cold: with a warm start, also fit cold and keep the higher bound.
+        local: a neighbourhood fit, whose noise comes from `config.noise_model`; False (a
+        wide selection model) keeps the VHGP's own g.
         A warm start is ignored (cold fit) if the costs of the observations it shares with
         `ids` have changed since (re-weighting): its hyperparameters describe other costs, and
         measured, starting from them left the fit on a plateau (slope 0.01 instead of 18).
@@ -306,7 +359,7 @@ class LocalCritic:
         ids = np.asarray(ids, dtype=np.int64)
         if ids.size < MIN_FIT_POINTS:
             raise CriticInputError(f"the critic needs at least {MIN_FIT_POINTS} observations, has {ids.size}")
-        key = self._key(ids)
+        key = self._key(ids) + bytes([local])
         if use_cache and key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
@@ -328,19 +381,36 @@ class LocalCritic:
         else:
             model.fit(X, y)
         self.n_fits += 1
-        fit = LocalFit(ids, model, warm_started=warm)
+        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None)
         self._remember(key, fit)
         return fit
 
+    def _noise(self, model: VHGP) -> LogLinearNoise | None:
+        """The log-linear noise model of a local fit (None with noise_model "vhgp")."""
+        if self.config.noise_model != "loglinear":
+            return None
+        X = np.asarray(model.X)
+        e, v = model.loo()
+        n, d = X.shape
+        extent = np.maximum(X.max(0) - X.min(0), 1e-9 * np.maximum(1.0, np.abs(X).max(0)))
+        # d + 1 coefficients from n residuals: the slope prior opens up linearly from n = d + 1
+        # to n = 5 (d + 1) points (measured: 10 points in 7-D with the full prior put r~ off
+        # by a factor e^11 at the edge of the ball)
+        support = min(1.0, max(n - (d + 1), 0) / (4.0 * (d + 1)))
+        return fit_log_linear(X, e, v, max(support, 1e-3) * self.config.noise_slope_prior / extent)
+
     def _new_model(self, d: int) -> VHGP:
-        ls_min = self.config.lengthscale_min * math.sqrt(d)
+        c = self.config
+        ls_min = c.lengthscale_min * math.sqrt(d)
+        g_ls_max = max(c.g_lengthscale_max, 2.0 * ls_min)
+        g_ls_min = ls_min if c.g_lengthscale_min is None else min(c.g_lengthscale_min, g_ls_max)
         return VHGP(
-            fixed_hyperparameters=self.config.fixed_hyperparameters,
-            max_iter=self.config.cold_iter,
-            warm_iter=self.config.warm_iter,
+            fixed_hyperparameters=c.fixed_hyperparameters,
+            max_iter=c.cold_iter,
+            warm_iter=c.warm_iter,
             lengthscale_range=(ls_min, 50.0),
-            g_variance_range=(self.config.g_variance_min, 50.0),
-            g_lengthscale_range=(ls_min, max(self.config.g_lengthscale_max, 2.0 * ls_min)),
+            g_variance_range=(c.g_variance_min, c.g_variance_max),
+            g_lengthscale_range=(g_ls_min, g_ls_max),
         )
 
     def _remember(self, key: bytes, fit: LocalFit) -> None:
@@ -363,9 +433,9 @@ class LocalCritic:
         if y.shape != ids.shape:
             raise CriticInputError("fit record: y and ids differ in length")
         model = VHGP.from_params(self._data.points[ids], y, VHGPParams.from_dict(record["params"]))
-        fit = LocalFit(ids, model)
+        fit = LocalFit(ids, model, noise=self._noise(model))
         if np.array_equal(y, self._data.costs[ids]):
-            self._remember(self._key(ids), fit)
+            self._remember(self._key(ids) + bytes([True]), fit)
         return fit
 
     def estimate(self, theta: np.ndarray, kappa: float = 0.0, warm_start: LocalFit | None = None) -> CriticEstimate:

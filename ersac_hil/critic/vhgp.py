@@ -193,8 +193,8 @@ class VHGP:
         self._mu0_offset = float(mu0_offset)
         self._ls_range = (float(lengthscale_range[0]), float(lengthscale_range[1]))
         g_ls = lengthscale_range if g_lengthscale_range is None else g_lengthscale_range
-        if not (0 < g_ls[0] < g_ls[1]) or not (0 < g_variance_range[0] < g_variance_range[1]):
-            raise CriticInputError("g ranges must be 0 < lo < hi")
+        if not (0 < g_ls[0] <= g_ls[1]) or not (0 < g_variance_range[0] <= g_variance_range[1]):
+            raise CriticInputError("g ranges must be 0 < lo <= hi (lo == hi: held fixed)")
         self._g_ls_range = (float(g_ls[0]), float(g_ls[1]))
         self._g_var_range = (float(g_variance_range[0]), float(g_variance_range[1]))
         self._jitter = float(jitter)
@@ -336,7 +336,7 @@ class VHGP:
         K[np.diag_indices(n)] += R + self._jitter
         LK = la.cholesky(K)
         self._X, self._y, self._std, self._p = X, y, std, p.copy()
-        self._LB, self._LK, self._s, self._beta = LB, LK, s, beta
+        self._LB, self._LK, self._s, self._beta, self._R = LB, LK, s, beta, R
         self._alpha = la.chol_solve(LK, ys)
         self._bound_std = value
         self._fitted = True
@@ -386,6 +386,28 @@ class VHGP:
         v = self._y.view()
         v.flags.writeable = False
         return v
+
+    def loo(self, noise_floor: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Leave-one-out residuals of the posterior mean and their variance without the noise,
+        both (n,) in the units of y: e_i = [K^-1 y]_i / [K^-1]_ii and
+        v_i = 1 / [K^-1]_ii - R'_ii, with K = Kf + R' + jitter (standardised units) and
+        R' = max(R, noise_floor): a fit whose noise collapsed (R -> 0, f through every
+        point) would otherwise give residuals at the level of round-off."""
+        self._check()
+        n, d = self._X.shape
+        _, lf, lsf, _, _, _ = unpack(self._p, n, d)
+        Rf = np.maximum(self._R, noise_floor)
+        with single_threaded_blas():
+            K = se_ard(self._X, self._X, lf, lsf)
+            K[np.diag_indices(n)] += Rf + self._jitter
+            L = la.cholesky(K)
+            if L is None:  # pragma: no cover - K is better conditioned than the fitted one
+                raise FitError("VHGP: leave-one-out matrix is not positive definite")
+            Kinv = la.chol_inverse(L)
+        dinv = np.diagonal(Kinv)
+        a = Kinv @ self._std.apply(self._y)
+        sc = self._std.scale
+        return sc * a / dinv, sc * sc * np.maximum(1.0 / dinv - Rf, 0.0)
 
     # ---------------------------------------------------------------- prediction
     def _kernels(self, Xt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

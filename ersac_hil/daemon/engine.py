@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ersac_hil.learner import ERSAC, CostWeights, InsufficientDataError
+from ersac_hil.learner.ersac import MAX_STEP
 from protocol.zenoh import get_task
 
 from .store import UpdateRecord
@@ -75,7 +76,7 @@ class Engine:
             lr_range=tuple(settings["lr_range"]),
             seed=int(settings["seed"]),
             weights=CostWeights(dict(settings["weights"])),
-            max_step=settings.get("max_step"),
+            max_step=settings.get("max_step", MAX_STEP),
             interleave_every=int(settings.get("interleave_every", 0)),
         )
         return cls(task, learner)

@@ -94,7 +94,7 @@ def select_policy(
         else:
             ids = critic.nearest(anchor, config.max_points)
         try:
-            fit = critic.fit_ids(ids, warm_start=warm_start)
+            fit = critic.fit_ids(ids, warm_start=warm_start, local=False)
         except CriticError as exc:
             raise InsufficientDataError(f"selection model fit failed: {exc}") from exc
         return minimise_on_fit(fit, bounds, kappa, anchor, config)

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.critic import CriticConfig, VHGP, VHGPParams
+from ersac_hil.critic.noise import fit_log_linear
 from ersac_hil.learner import (
     ERSAC,
     CostWeights,
@@ -66,8 +67,12 @@ def test_update_matches_hand_computation() -> None:
     fit = L._last_fit
     X, y = L.store.points[fit.ids], L.store.costs[fit.ids]
     model = VHGP.from_params(X, y, VHGPParams(fit.model.params.log_lambda, fit.model.params.kernel))
-    p = model.predict(np.vstack([u.theta_before, u.executed]))
-    J_t, r_t, r_p = p.f_mean[0], math.sqrt(math.exp(p.g_mean[0] + p.g_var[0] / 2)), math.sqrt(math.exp(p.g_mean[1] + p.g_var[1] / 2))
+    Xq = np.vstack([u.theta_before, u.executed])
+    p = model.predict(Xq)
+    # r~ from the log-linear noise model on the VHGP's leave-one-out residuals (the default)
+    noise = fit_log_linear(X, *model.loo(), 10.0 / (X.max(0) - X.min(0)))
+    g_mean, g_var = noise.predict(Xq)
+    J_t, r_t, r_p = p.f_mean[0], math.sqrt(math.exp(g_mean[0] + g_var[0] / 2)), math.sqrt(math.exp(g_mean[1] + g_var[1] / 2))
     assert u.J_tilde == pytest.approx(J_t, rel=1e-12)
     assert u.r_tilde == pytest.approx(r_t, rel=1e-12)
     assert u.r_tilde_perturbed == pytest.approx(r_p, rel=1e-12)

@@ -34,7 +34,7 @@ def test_finds_the_risk_sensitive_optimum_inside_the_data() -> None:
     assert s.F_tilde == pytest.approx(s.J_tilde + 2.0 * s.r_tilde)
     assert s.distance_to_data <= 0.1 + 1e-9 and s.kappa == 2.0
     # optimal under the model: no observed point has a lower F~
-    fit = L.local_critic.fit_ids(np.arange(150))
+    fit = L.local_critic.fit_ids(np.arange(150), local=False)
     assert s.F_tilde <= fit.estimate_many(L.store.points, 2.0)[2].min() + 1e-9
     # risk-neutral selection is stiffer (the noise there, 0.5-1.3, hides where exactly
     # J's flat optimum at 0.8 lies: J(0.5) - J(0.8) = 0.135)
