@@ -30,6 +30,7 @@ wheel-smoke:
 
 bench: $(STAMP)
 	$(BIN)/python bench/learner.py --quick
+	$(BIN)/python bench/critic.py --quick
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/episode.py
 	$(BIN)/python bench/bracing_sweep.py
