@@ -219,6 +219,7 @@ class EpisodeRunner:
                     return
                 self._check_emcy(run, emcy_mark)
                 self._flags(run, tel)
+                ctl.payload = task.payload_kg(run.failures)
                 left, right = ctl.torque(tel)
                 commands = Commands(wheel_torque=(left, right), torso_position=commands.torso_position,
                                     arm_left=commands.arm_left, arm_right=commands.arm_right,

@@ -14,7 +14,8 @@ Call order in one episode (``EpisodeRunner.run``)::
     end = task.end_condition(setup, period_s)     # fresh per episode (may count cycles)
     tel = bus.cycle(commands)                     # first SYNC
     commands = task.begin(bus, setup, tel, commands)   # the commands of every later cycle
-    ... each cycle: LQR wheel torques + the task's arm commands; stop when end(tel, n, failures) says why
+    ... each cycle: LQR wheel torques (balance reference with task.payload_kg(failures)) + the
+        task's arm commands; stop when end(tel, n, failures) says why
     terms = task.cost_terms(trace, emcy)          # exactly TASKS[name].term_names
     summary |= task.summary(trace); truth = task.ground_truth(bus, flags)
 """
@@ -104,6 +105,11 @@ class Task(ABC, Generic[Setup]):
         """After the first cycle (the measured start state in ``first``): the arm and torso
         commands of every later cycle (the runner adds the wheel torques). Default: unchanged."""
         return commands
+
+    def payload_kg(self, failures: Mapping[str, bool]) -> float:
+        """The mass at the hands the balance references now, given the failure flags raised
+        so far (default: ``balance.payload_kg`` throughout)."""
+        return self.balance.payload_kg
 
     def end_condition(self, setup: Setup, period_s: float) -> EndCondition:
         """A fresh end condition for one episode. Default: run the whole horizon."""

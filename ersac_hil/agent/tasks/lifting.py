@@ -6,8 +6,10 @@ refusal before the robot is reset). After the first cycle the spline is planned 
 *measured* start pose of each arm (limits checked again), downloaded by SDO, and started by
 the next cycle's START_SPLINE. The episode ends after T = 6 s or at the goal: the spline
 finished, the bottle (still held) within ``goal_tolerance_m`` of the goal height and the ground
-speed below ``rest_speed_m_s`` for ``rest_s``. A dropped bottle is on the floor: the hands at the
-goal height are not the bottle there (the episode goes on to T, its height error counts). The LQR is designed with the bottle at the hands.
+speed below ``rest_speed_m_s`` for ``rest_s``. A dropped bottle is on the floor: the hands at
+the goal height are not the bottle there (the episode goes on to T, its height error counts).
+The LQR is designed with the bottle at the hands; once its drop is reported (EMCY 0xFF30) the
+balance reference no longer counts it.
 
 Cost terms (``costs``), x = [x_wheel, xdot_wheel, alpha, alpha_dot, h_error]:
     x_wheel_sq    [m^2 s]     int x^2 dt, x = r (phi + alpha) - x_0 wheel odometry (mean of
@@ -53,13 +55,13 @@ class LiftingSetup:
 class LiftingTask(Task[LiftingSetup]):
     """Attributes:
         policy: theta -> spline; the nominal start pose and the goal height.
-        payload_kg: the bottle, for the balance reference and the LQR model.
+        payload_kg_held: the bottle, for the LQR model and the balance reference while held.
         goal_tolerance_m, rest_speed_m_s, rest_s: the end condition at the goal.
         floor_height_m: height of a dropped bottle's centre (lying on the floor) [m].
         robot: kinematics for the bottle height and the ground speed.
     """
     policy: LiftingPolicy = LiftingPolicy()
-    payload_kg: float = 1.0
+    payload_kg_held: float = 1.0
     goal_tolerance_m: float = 0.05
     rest_speed_m_s: float = 0.05
     rest_s: float = 0.25
@@ -70,7 +72,7 @@ class LiftingTask(Task[LiftingSetup]):
 
     @property
     def balance(self) -> Balance:
-        return Balance(self.policy.start, self.payload_kg, None)
+        return Balance(self.policy.start, self.payload_kg_held, None)
 
     def plan(self, theta: Sequence[float]) -> LiftingSetup:
         checked = self.spec.check_theta(theta)
@@ -89,6 +91,11 @@ class LiftingTask(Task[LiftingSetup]):
         return Commands(arm_left=poses["left"], arm_right=poses["right"],
                         torso_position=commands.torso_position,
                         arm_control=Control.ENABLE | Control.START_SPLINE)
+
+    def payload_kg(self, failures: Mapping[str, bool]) -> float:
+        """The bottle while held; nothing once its drop was reported (the balance reference
+        must not keep leaning for a bottle that is on the floor)."""
+        return 0.0 if failures.get("bottle_dropped") else self.payload_kg_held
 
     def end_condition(self, setup: LiftingSetup, period_s: float) -> EndCondition:
         spline_cycles = 1 + int(math.ceil(setup.spline.duration / period_s))
