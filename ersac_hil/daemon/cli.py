@@ -6,7 +6,8 @@ and ``--insecure`` (``ersac_hil.zenoh_session.resolve_config``).
 Clients (Zenoh client sessions): ``state``, ``kappa get|set``, ``weights get|set``,
 ``critic``, ``select``. Offline: ``report``.
 
-Exit codes: 0 ok, 1 request refused / no answer, 2 invalid arguments or configuration,
+Exit codes: 0 ok (also: the latest run is already finished, nothing to do), 1 request
+refused / no answer, 2 invalid arguments or configuration,
 3 run failed, 4 agent absent too long, 128+N on signal N.
 """
 from __future__ import annotations
@@ -47,6 +48,7 @@ def _daemon(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import serve
 
     from .config import ConfigError, load_toml, merge
+    from .runs import RunFinished
     from .service import Daemon
     from .store import StoreError
     from ersac_hil.zenoh_session import ZenohSessionError
@@ -66,6 +68,9 @@ def _daemon(args: argparse.Namespace) -> int:
         config = merge(load_toml(args.config) if args.config else {}, flags)
         daemon = Daemon(config)
         code = serve(daemon, until=daemon.finished)
+    except RunFinished as exc:  # a supervisor's restart after the end: not an error
+        print(f"ersac-hil daemon: {exc}", flush=True)
+        return 0
     except (ConfigError, StoreError) as exc:
         return _fail(str(exc))
     except ZenohSessionError as exc:

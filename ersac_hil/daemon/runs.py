@@ -1,7 +1,10 @@
 """Runs: open a new run or resume one, rebuild the learner from the store, derived seeds and ids.
 
 Resume rules (:func:`open_run`): ``resume="latest"`` takes the latest ``running`` run of the
-robot and task (else a new run), ``"new"`` always starts one, a run id picks that run. A
+robot and task (else a new run) - unless the latest run of the robot and task is
+``finished``: then there is nothing to do (:class:`RunFinished`; the CLI says so and exits 0,
+so a supervisor restarting the daemon never repeats a finished run); ``"new"`` always
+starts one, a run id picks that run. A
 resumed run keeps its stored learner settings; explicitly given learner settings that differ
 are refused, so a changed command line never silently continues an old run.
 
@@ -20,7 +23,16 @@ from .config import LEARNER_FIELDS, RESUME_LATEST, RESUME_NEW, ConfigError, Daem
 from .engine import Engine
 from .store import RunNotFound, RunRecord, Store
 
-__all__ = ["scenario_seed", "episode_id", "new_run_id", "open_run", "rebuild_engine"]
+__all__ = ["RunFinished", "scenario_seed", "episode_id", "new_run_id", "open_run", "rebuild_engine"]
+
+
+class RunFinished(Exception):
+    """``resume="latest"`` and the latest run of the robot and task is finished."""
+
+    def __init__(self, run: RunRecord) -> None:
+        super().__init__(f"run {run.run_id} of {run.robot}/{run.task} is already finished; nothing "
+                         "to do (--new starts another run, --resume RUN_ID continues a given one)")
+        self.run = run
 
 
 def scenario_seed(run_seed: int, idx: int) -> int:
@@ -43,9 +55,16 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
     A resumed run keeps its stored learner settings; explicitly given learner settings that
     differ are refused (``ConfigError``), so a changed command line never silently continues
     an old run. ``episodes`` may be changed on resume (a new total budget).
+
+    Raises:
+        RunFinished: ``resume="latest"`` and the latest matching run is finished.
+        ConfigError: an unknown run id, another robot/task, conflicting learner settings.
     """
     run: RunRecord | None = None
     if config.resume == RESUME_LATEST:
+        latest = store.latest_run(config.robot, config.task)
+        if latest is not None and latest.status == "finished":
+            raise RunFinished(latest)
         run = store.latest_unfinished(config.robot, config.task)
     elif config.resume != RESUME_NEW:
         try:

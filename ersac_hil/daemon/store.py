@@ -380,6 +380,12 @@ class Store:
     def runs(self) -> list[RunRecord]:
         return [_run(r) for r in self._query("SELECT * FROM runs ORDER BY created_s, rowid")]
 
+    def latest_run(self, robot: str, task: str) -> RunRecord | None:
+        """The most recently created run of ``robot``/``task``, whatever its status."""
+        rows = self._query("SELECT * FROM runs WHERE robot = ? AND task = ? "
+                           "ORDER BY created_s DESC, rowid DESC LIMIT 1", (robot, task))
+        return _run(rows[0]) if rows else None
+
     def latest_unfinished(self, robot: str, task: str) -> RunRecord | None:
         """The most recently created run of ``robot``/``task`` that is still ``running``."""
         rows = self._query(

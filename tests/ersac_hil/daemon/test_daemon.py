@@ -249,6 +249,14 @@ def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path)
     assert (retry.theta, retry.seed) == (interrupted[0].theta, interrupted[0].seed)
     assert retry.attempt > interrupted[0].attempt
 
+    # a supervisor restarting the daemon after the end: it says so, exits 0, repeats nothing
+    again = subprocess.run(_daemon_cmd(router, killed), env=env, cwd=ROOT, capture_output=True,
+                           text=True, timeout=120)
+    assert again.returncode == 0 and "already finished" in again.stdout, again.stdout + again.stderr
+    with Store(killed, readonly=True) as store:
+        assert [r.run_id for r in store.runs()] == [run.run_id]
+    assert _ok_history(killed)[1] == eps
+
 
 def _wait_for_store(db: Path, predicate) -> None:  # noqa: ANN001
     """Wait until ``predicate(store, run_id)`` holds in a store another process is writing."""
