@@ -18,6 +18,10 @@ def register(subparsers) -> None:
     add_zenoh_arguments(p)
     p.add_argument("--mode", choices=("client", "peer"), default="client",
                    help="zenoh session mode (default client, through a router)")
+    p.add_argument("--record-can", dest="record_can", metavar="DIR",
+                   help="write each episode's CAN traffic to DIR/<episode_id>.blf (or .asc)")
+    p.add_argument("--record-format", dest="record_format", choices=("blf", "asc"), default="blf",
+                   help="CAN trace format (default blf)")
     p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
     p.add_argument("--period-ms", type=float, default=5.0, help="control period (default 5 ms)")
     p.add_argument("--deadline-ms", type=float, default=250.0,
@@ -41,6 +45,7 @@ def _run(args: argparse.Namespace) -> int:
         config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
                              zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
+                             record_can=args.record_can, record_format=args.record_format,
                              timing=timing)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),

@@ -24,11 +24,13 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import msgspec
 import zenoh
 
 from ersac_hil.agent.bus import AgentBus, BusTiming
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
+from ersac_hil.agent.trace import CanRecorder
 from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
 from protocol.zenoh import (EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, InvalidField,
@@ -47,6 +49,8 @@ class AgentConfig:
             (default: the config file's, else ``tcp/127.0.0.1:7447``); zenoh_listen: peer mode
             only; zenoh_config: a Zenoh json5 file (TLS certificates of the agent role...);
             zenoh_insecure: allow plain endpoints off loopback (``resolve_config``).
+        record_can, record_format: write each episode's CAN traffic to
+            ``record_can/<episode_id>.<record_format>`` (``blf`` or ``asc``; ``agent.trace``).
         episode: what episodes do (policies, LQR weights, cost weights).
     """
     robot: str
@@ -56,6 +60,8 @@ class AgentConfig:
     zenoh_listen: tuple[str, ...] = ()
     zenoh_config: str | None = None
     zenoh_insecure: bool = False
+    record_can: str | None = None
+    record_format: str = "blf"
     prefix: str = "ersac"
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
@@ -80,6 +86,7 @@ class AgentService:
         self._work: queue.Queue = queue.Queue()
         self._worker: threading.Thread | None = None
         self._go = threading.Event()
+        self.recorder: CanRecorder | None = None
         self.episodes = 0
         self.refused = 0
 
@@ -88,6 +95,8 @@ class AgentService:
         cfg = self.config
         self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
         self.runner = EpisodeRunner(self.bus, cfg.episode, go=self._wait_go)
+        if cfg.record_can is not None:
+            self.recorder = CanRecorder(cfg.bus, cfg.record_can, cfg.record_format).start()
         for task in cfg.episode.tasks:
             self.runner.design(task)  # LQR gains once, before the first request
         options = ZenohOptions(cfg.zenoh_connect, cfg.zenoh_config, cfg.zenoh_insecure)
@@ -127,6 +136,9 @@ class AgentService:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
+        if self.recorder is not None:
+            self.recorder.stop()
+            self.recorder = None
 
     def __enter__(self) -> "AgentService":
         self.start()
@@ -178,6 +190,8 @@ class AgentService:
             self._answer(query, plan, outcome)
 
     def _run(self, plan) -> EpisodeResult | ErrorReply:
+        if self.recorder is not None:
+            self.recorder.begin(plan.request.episode_id)
         try:
             result = self.runner.run(plan)  # type: ignore[union-attr]
         except RequestRefused as exc:
@@ -185,6 +199,10 @@ class AgentService:
         except Exception as exc:
             log.exception("episode %s failed", plan.request.episode_id)
             return ErrorReply.from_exception(exc, "internal")
+        finally:
+            trace = self.recorder.end() if self.recorder is not None else ""
+        if trace:
+            result = msgspec.structs.replace(result, trace=trace)
         self.episodes += 1
         log.info("episode %s %s: %s cost %s in %.2f s", plan.request.episode_id, plan.request.task,
                  result.status, result.total_cost, result.wall_s)

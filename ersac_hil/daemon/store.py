@@ -5,7 +5,8 @@ Tables (schema version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``)::
     runs      one learning run: robot, task, seed, learner settings (JSON), status
     episodes  one row per *attempt*: the request (base theta, perturbation z, executed theta,
               scenario seed), the outcome (status, cost terms, cost under the current
-              weights, failure flags, telemetry summary, fault counters) and timestamps.
+              weights, failure flags, telemetry summary, fault counters, the file name of the
+              agent's CAN trace of the episode, if it recorded one) and timestamps.
               ``idx`` is the learner episode the attempt serves; at most one "ok" attempt
               per (run, idx) (a partial unique index enforces it).
     updates   one row per learner update (= per ok episode, same idx): theta before/after,
@@ -19,6 +20,9 @@ Write rules: an attempt is inserted as ``pending`` (committed) before its query 
 successful episode and its update are committed in ONE transaction before the next episode
 starts; a failed attempt is committed with its status and is never told to the learner.
 A weights change and the re-costing of every stored ok episode are one transaction.
+
+A store of an older schema is migrated in place when opened for writing (schema 1 -> 2: the
+``trace`` column); read-only opens read it as it is.
 
 One connection shared by the daemon's threads, serialised by a lock. JSON columns hold
 floats as ``repr`` text, so values round-trip exactly.
@@ -52,7 +56,10 @@ __all__ = [
     "ChangeRecord",
 ]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Older schemas this code opens (read-write ones are migrated in place): 1 lacks
+#: ``episodes.trace``.
+_MIGRATIONS = {1: "ALTER TABLE episodes ADD COLUMN trace TEXT NOT NULL DEFAULT ''"}
 RUN_STATUSES: tuple[str, ...] = ("running", "finished", "failed")
 #: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own: pending (sent, no
 #: answer yet), timeout (no reply in time), lost (the agent's liveliness token vanished while
@@ -96,6 +103,7 @@ CREATE TABLE episodes (
     detail      TEXT NOT NULL DEFAULT '',
     requested_s REAL NOT NULL,
     finished_s  REAL,
+    trace       TEXT NOT NULL DEFAULT '',
     UNIQUE (run_id, idx, attempt)
 );
 CREATE UNIQUE INDEX episodes_one_ok ON episodes(run_id, idx) WHERE status = 'ok';
@@ -196,6 +204,7 @@ class EpisodeRecord:
     detail: str
     requested_s: float
     finished_s: float | None
+    trace: str = ""
 
     @property
     def ok(self) -> bool:
@@ -261,6 +270,7 @@ def _episode(row: sqlite3.Row) -> EpisodeRecord:
         row["status"], _loads(row["cost_terms"]), row["cost"], row["agent_cost"],
         _loads(row["failures"]), _loads(row["telemetry"]), _loads(row["fault_counts"]),
         row["duration_s"], row["wall_s"], row["detail"], row["requested_s"], row["finished_s"],
+        row["trace"] if "trace" in row.keys() else "",
     )
 
 
@@ -316,7 +326,12 @@ class Store:
                 if tables:
                     raise StoreError(f"{self.path} is an SQLite file but not an ersac-hil store")
                 self._db.executescript(_SCHEMA)
-            elif version != SCHEMA_VERSION:
+            elif version in _MIGRATIONS and not readonly:
+                while version in _MIGRATIONS:  # each step in its own transaction
+                    self._db.executescript(f"BEGIN; {_MIGRATIONS[version]}; "
+                                           f"PRAGMA user_version = {version + 1}; COMMIT;")
+                    version += 1
+            elif version != SCHEMA_VERSION and not (readonly and version in _MIGRATIONS):
                 raise StoreError(f"{self.path}: store schema {version}, this code needs {SCHEMA_VERSION}")
         except sqlite3.DatabaseError as exc:
             self._db.close()
@@ -433,7 +448,7 @@ class Store:
                 cost_terms=_dumps(dict(result.cost_terms)), agent_cost=result.total_cost,
                 failures=_dumps(dict(result.failures)), telemetry=_dumps(dict(result.telemetry)),
                 fault_counts=_dumps(dict(result.fault_counts)), duration_s=result.duration_s,
-                wall_s=result.wall_s, detail=detail or result.detail,
+                wall_s=result.wall_s, detail=detail or result.detail, trace=result.trace,
             )
         sets = ", ".join(f"{k} = ?" for k in values)
         cur = db.execute(f"UPDATE episodes SET {sets} WHERE episode_id = ? AND status = 'pending'",

@@ -45,6 +45,8 @@ Failures = Annotated[
     dict[Literal[FAILURE_FLAGS], bool],  # type: ignore[valid-type]
     Meta(extra_json_schema={"propertyNames": {"enum": list(FAILURE_FLAGS)}}),
 ]
+#: A trace file name: an episode id plus a python-can log suffix, or empty.
+TraceName = Annotated[str, Meta(pattern=r"^$|^[A-Za-z0-9][A-Za-z0-9_.:\-]{0,127}\.(blf|asc)$(?!\n)")]
 Robot = Annotated[str, Meta(pattern=anchored(CHUNK_PATTERN))]
 
 
@@ -93,9 +95,13 @@ class EpisodeResult(Message, frozen=True):
             ``max_abs_pitch_acc`` [rad/s^2], ``energy_j``, ``peak_current_a``...), finite.
         fault_counts: counters by name (``emcy``, ``pdo_timeouts``, ``late_cycles``...), >= 0.
         detail: free text for humans (<= 4096 characters).
+        trace: file name (no directory) of the episode's CAN trace the agent wrote
+            (``agent --record-can DIR``: ``<episode_id>.blf`` or ``.asc``), ``""`` if none.
+            Added after the first revision of v1: optional on the wire (absent = ``""``).
     """
 
     TYPE: ClassVar[str] = "episode_result"
+    WIRE_OPTIONAL: ClassVar[frozenset[str]] = frozenset({"trace"})
 
     episode_id: Id
     task: TaskName
@@ -108,6 +114,7 @@ class EpisodeResult(Message, frozen=True):
     telemetry: dict[Name, Finite] = {}
     fault_counts: dict[Name, Count] = {}
     detail: Text = ""
+    trace: TraceName = ""
 
     def _check(self) -> None:
         ok = self.status == "ok"

@@ -30,15 +30,19 @@ _DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
 
 def _require_everything(schema: dict[str, Any]) -> None:
-    """On the wire every field is required, even those with a default in code; descriptions
-    keep the docstring's first paragraph."""
-    for definition in schema.get("$defs", {}).values():
+    """On the wire every field is required, even those with a default in code, except those
+    a later revision added (``WIRE_OPTIONAL``); descriptions keep the docstring's first
+    paragraph."""
+    optional = {cls.__name__: cls.WIRE_OPTIONAL for cls in message_types().values()}
+    for name, definition in schema.get("$defs", {}).items():
         if "description" in definition:
             definition["description"] = " ".join(definition["description"].split("\n\n")[0].split())
         if definition.get("type") == "object" and "properties" in definition:
-            definition["required"] = list(definition["properties"])
-            for prop in definition["properties"].values():
-                prop.pop("default", None)
+            skip = optional.get(name, frozenset())
+            definition["required"] = [p for p in definition["properties"] if p not in skip]
+            for prop_name, prop in definition["properties"].items():
+                if prop_name not in skip:
+                    prop.pop("default", None)
 
 
 def payload_schema(message_type: str) -> dict[str, Any]:
@@ -61,7 +65,7 @@ def payload_schema(message_type: str) -> dict[str, Any]:
         "description": body.get("description", ""),
         "type": "object",
         "properties": properties,
-        "required": list(properties),
+        "required": [p for p in properties if p not in cls.WIRE_OPTIONAL],
         "additionalProperties": False,
     }
     if defs:

@@ -67,18 +67,20 @@ def check_envelope(obj: Mapping[str, Any], expected_type: str | None = None) -> 
 
 def _require_all(obj: Any, cls: type, path: str) -> None:
     """Every field of ``cls`` (and of nested records) is present: on the wire no field is
-    optional, even those with a default in code."""
+    optional, even those with a default in code - except those a later revision of the same
+    version added (``WIRE_OPTIONAL``), so that older senders stay valid."""
     if not isinstance(obj, Mapping):
         return  # msgspec names the wrong kind
     hints = field_types(cls)
+    optional = getattr(cls, "WIRE_OPTIONAL", frozenset())
     for name in cls.__struct_fields__:
         where = f"{path}.{name}" if path else name
-        if name not in obj:
+        if name not in obj and name not in optional:
             raise InvalidField(where, f"missing field of {getattr(cls, 'TYPE', cls.__name__)!r}")
         sub = unwrap(hints[name])
         if isinstance(sub, type) and issubclass(sub, Record):
-            _require_all(obj[name], sub, where)
-        elif getattr(sub, "__origin__", None) is tuple and isinstance(obj[name], list):
+            _require_all(obj.get(name), sub, where)
+        elif getattr(sub, "__origin__", None) is tuple and isinstance(obj.get(name), list):
             item = unwrap(sub.__args__[0])
             if isinstance(item, type) and issubclass(item, Record):
                 for i, value in enumerate(obj[name]):
@@ -86,9 +88,11 @@ def _require_all(obj: Any, cls: type, path: str) -> None:
 
 
 class Message(Record, frozen=True):
-    """Base of every payload. Subclasses set ``TYPE`` (the wire ``type``)."""
+    """Base of every payload. Subclasses set ``TYPE`` (the wire ``type``) and may list in
+    ``WIRE_OPTIONAL`` fields added after the first revision of the version (absent: default)."""
 
     TYPE: ClassVar[str] = ""
+    WIRE_OPTIONAL: ClassVar[frozenset[str]] = frozenset()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

@@ -219,3 +219,24 @@ def test_changes_and_latest_unfinished(store):
     assert store.latest_unfinished("r2", "bracing") is None
     with pytest.raises(StoreError):
         store.set_run_status("run1", "exploded")
+
+
+def test_trace_names_are_stored_and_a_schema_1_store_is_migrated(tmp_path):
+    path = tmp_path / "old.db"
+    with Store(path) as store:
+        store.create_run("r1", "ubot1", "bracing", 3, {"episodes": 2})
+        eid = _ok_episode(store, "r1", 0, {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5})
+    db = sqlite3.connect(path)  # what a schema-1 store looks like: no trace column
+    db.executescript("ALTER TABLE episodes DROP COLUMN trace; PRAGMA user_version = 1;")
+    db.close()
+    with Store(path, readonly=True) as store:
+        assert [e.trace for e in store.ok_episodes("r1")] == [""]
+    with Store(path) as store:  # migrated on a read-write open
+        assert store.journal_mode == "wal"
+        eid = "r1.00001.0"
+        store.begin_attempt("r1", eid, 1, 0, (0.5,), (0.01,), (0.51,), 8)
+        terms = {"damage": 0.0, "body_acc_sq": 2.0, "arm_power": 0.5}
+        traced = EpisodeResult(eid, "bracing", "ok", terms, SPEC.total_cost(terms), trace=f"{eid}.blf")
+        store.record_success(eid, traced, SPEC.total_cost(terms), _update("r1", 1, eid, 0.5, 0.52))
+        assert [e.trace for e in store.ok_episodes("r1")] == ["", f"{eid}.blf"]
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == 2

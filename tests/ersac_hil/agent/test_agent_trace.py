@@ -1,0 +1,68 @@
+"""CAN traces per episode (``agent --record-can``): real agent service, simulated bench on a
+virtual bus, real Zenoh router; the traces read back with python-can."""
+from __future__ import annotations
+
+import uuid
+
+import can
+import pytest
+
+from ersac_hil.agent.service import AgentConfig, AgentService
+from ersac_hil.agent.trace import CanRecorder
+from ersac_hil.zenoh_session import EmbeddedRouter
+from firmware_sim.nodes.simbench import SimulatedBench
+from helpers.waiting import wait_until
+from protocol.can import cobid
+from protocol.can.busconfig import BusConfig, open_bus
+from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def test_each_episode_writes_a_blf_trace_named_in_the_result(tmp_path):
+    bus = BusConfig("virtual", f"trace-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-trace")
+    bench = SimulatedBench(bus)
+    try:
+        with EmbeddedRouter() as router:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,),
+                                 record_can=str(tmp_path / "traces"))
+            with AgentService(config), router.open_client() as session:
+                wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                replies = []
+                for eid in ("ep-a", "ep-b"):
+                    request = EpisodeRequest(eid, "bracing", (0.3,), 5)
+                    replies += [EpisodeResult.from_json(r.ok.payload)
+                                for r in session.get(keys.episode_run, payload=request.to_json(), timeout=60)]
+    finally:
+        bench.close()
+    assert [r.trace for r in replies] == ["ep-a.blf", "ep-b.blf"] and all(r.ok for r in replies)
+    for result in replies:
+        frames = list(can.LogReader(str(tmp_path / "traces" / result.trace)))
+        ids = [f.arbitration_id for f in frames]
+        cycles = round(result.telemetry["n_cycles"])
+        assert ids.count(cobid.SYNC) >= cycles  # every control cycle of the episode is in it
+        assert len(set(ids)) > 10  # SYNC, RPDOs, TPDOs, heartbeats of every node
+        assert all(a.timestamp <= b.timestamp for a, b in zip(frames, frames[1:]))
+
+
+def test_asc_traces_and_frames_between_episodes_are_dropped(tmp_path):
+    config = BusConfig("virtual", f"trace-{uuid.uuid4().hex[:8]}")
+    sender = open_bus(config)
+    recorder = CanRecorder(config, tmp_path, "asc").start()
+    try:
+        def send(n: int) -> None:
+            for i in range(n):
+                sender.send(can.Message(arbitration_id=0x181, data=[i, 1, 2]))
+        send(5)  # no episode: not recorded
+        recorder.begin("e1")
+        send(20)
+        wait_until(lambda: recorder.frames >= 20)
+        assert recorder.end() == "e1.asc" and recorder.end() == ""
+    finally:
+        recorder.stop()
+        sender.shutdown()
+    frames = list(can.LogReader(str(tmp_path / "e1.asc")))
+    assert [f.data[0] for f in frames] == list(range(20))
+    with pytest.raises(ValueError, match="format"):
+        CanRecorder(config, tmp_path, "mf4")
