@@ -117,6 +117,15 @@ def _json5(comment: str, config: dict[str, Any]) -> bytes:
     return (head + json.dumps(config, indent=2) + "\n").encode()
 
 
+_NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}, "delay": 0}
+
+
+def _tls(files: Path, **names: str) -> dict[str, Any]:
+    """``transport.link.tls`` with the CA, the given key/certificate files, client certificates on."""
+    tls = {"root_ca_certificate": str(files / "ca.crt"), **{k: str(files / v) for k, v in names.items()}}
+    return {"link": {"tls": {**tls, "enable_mtls": True}}}
+
+
 def router_config(files: Path, listen: Sequence[str], prefix: str = "ersac") -> dict[str, Any]:
     """The router's Zenoh config: TLS listeners with client certificates required, the
     roles' access control. ``files`` is where the key/cert files are (on the router)."""
@@ -124,13 +133,8 @@ def router_config(files: Path, listen: Sequence[str], prefix: str = "ersac") -> 
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "connect": {"endpoints": []},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}, "delay": 0},
-        "transport": {"link": {"tls": {
-            "root_ca_certificate": str(files / "ca.crt"),
-            "listen_private_key": str(files / "router.key"),
-            "listen_certificate": str(files / "router.crt"),
-            "enable_mtls": True,
-        }}},
+        "scouting": _NO_SCOUTING,
+        "transport": _tls(files, listen_private_key="router.key", listen_certificate="router.crt"),
         "access_control": access_control(prefix),
     }
 
@@ -141,13 +145,8 @@ def client_config(role: str, files: Path, connect: Sequence[str]) -> dict[str, A
         "mode": "client",
         "connect": {"endpoints": list(connect)},
         "listen": {"endpoints": []},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}, "delay": 0},
-        "transport": {"link": {"tls": {
-            "root_ca_certificate": str(files / "ca.crt"),
-            "connect_private_key": str(files / f"{role}.key"),
-            "connect_certificate": str(files / f"{role}.crt"),
-            "enable_mtls": True,
-        }}},
+        "scouting": _NO_SCOUTING,
+        "transport": _tls(files, connect_private_key=f"{role}.key", connect_certificate=f"{role}.crt"),
     }
 
 
