@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/episode.py
 	$(BIN)/python bench/bracing_sweep.py
 	$(BIN)/python bench/fault_latency.py
+	$(BIN)/python bench/secure_session.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
