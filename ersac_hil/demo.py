@@ -21,6 +21,8 @@ connects with its role's config (``--zenoh-config OUT/certs/<role>.json5``).
 ``OUT/stack.json`` says where the router is and which config each role uses, so a person or a
 program can attach (e.g. ``ersac-hil state --zenoh-config OUT/certs/observer.json5``).
 ``--linger`` keeps the whole stack up after the report until Ctrl-C.
+``--dashboard``: ``ersac-hil dashboard`` starts after the agent, before the daemon (so its page
+sees every episode), with the operator's identity under ``--secure``; its URL is printed.
 """
 from __future__ import annotations
 
@@ -168,6 +170,8 @@ class DemoConfig:
         router_host: loopback address the router listens on.
         daemon_host, agent_host: loopback source addresses of the daemon's and the agent's
             Zenoh links (``#bind=``), to put them on other addresses than the router.
+        dashboard: also start ``ersac-hil dashboard`` and print its URL.
+        dashboard_port: its port (0: a free one).
     """
 
     task: str = "bracing"
@@ -182,6 +186,8 @@ class DemoConfig:
     router_host: str = "127.0.0.1"
     daemon_host: str | None = None
     agent_host: str | None = None
+    dashboard: bool = False
+    dashboard_port: int = 8050
 
 
 def cli_argv(*args: str) -> list[str]:
@@ -314,6 +320,11 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         stack.start()
         endpoint, (pair,) = stack.endpoint, stack.pairs
         say(f"demo: router {endpoint}, CAN hub {pair.channel}")
+        if config.dashboard:
+            url = stack.launch("dashboard", cli_argv(
+                "dashboard", "--robot", config.robot, *stack.zenoh_args("operator"),
+                "--port", str(config.dashboard_port))).wait_for(r"^dashboard: (http://\S+)", 30, stop)
+            say(f"demo: dashboard {url.group(1)}")
         daemon = stack.launch("daemon", cli_argv(
             "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
             "--episodes", str(config.episodes), "--seed", str(config.seed),
@@ -379,7 +390,8 @@ def _demo(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
-                            secure=args.secure, linger=args.linger)
+                            secure=args.secure, linger=args.linger, dashboard=args.dashboard,
+                            dashboard_port=args.dashboard_port)
         code = run_demo(config, stop, lambda line: print(line, flush=True))
     finally:
         for s, handler in previous.items():
@@ -398,6 +410,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
     p.add_argument("--secure", action="store_true",
                    help="TLS with client certificates and access control by role (certs in OUT/certs)")
+    p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard; prints its URL")
+    p.add_argument("--dashboard-port", dest="dashboard_port", type=int, default=8050,
+                   help="dashboard port (default 8050; 0 = a free one)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo)
