@@ -1,4 +1,4 @@
-"""Shared fixtures: CAN backends available on this machine.
+"""Shared fixtures: CAN backends available on this machine; the hypothesis profile (no deadlines).
 
 ``can_backend`` is parametrised over every backend; each test gets a fresh channel (a new
 virtual channel name, a new loopback hub, a new CAN-over-Zenoh channel on the session's
@@ -12,6 +12,13 @@ import uuid
 import pytest
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from hypothesis import settings  # noqa: E402
+
+# No per-example deadline: it is a timed assert (a busy machine makes any example slow);
+# speed is measured in bench/.
+settings.register_profile("ersac-hil", deadline=None)
+settings.load_profile("ersac-hil")
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
