@@ -11,6 +11,8 @@ import logging
 import os
 import sys
 
+import ersac_hil
+from ersac_hil.cli_args import Parser, UsageError, fail, positive_float, positive_int, tcp_port
 from protocol.can.busload import BUDGET_PERCENT, bus_load, format_report
 
 
@@ -55,18 +57,19 @@ def _sim(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ersac-hil", description=__doc__.splitlines()[0])
+    parser = Parser(prog="ersac-hil", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="count", default=0)
+    parser.add_argument("--version", action="version", version=f"ersac-hil {ersac_hil.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("bus-load", help="worst-case bus load of the cyclic PDO schedule")
-    p.add_argument("--rate", type=float, default=200.0, help="SYNC rate in Hz (default 200)")
-    p.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
+    p.add_argument("--rate", type=positive_float, default=200.0, help="SYNC rate in Hz (default 200)")
+    p.add_argument("--bitrate", type=positive_int, default=1_000_000, help="bit/s (default 1000000)")
     p.add_argument("--check", action="store_true", help=f"exit 1 above {BUDGET_PERCENT:g} %%")
     p.set_defaults(func=_bus_load)
 
     p = sub.add_parser("bus", help="loopback CAN hub (python-can-remote on 127.0.0.1)")
-    p.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
+    p.add_argument("--port", type=tcp_port, default=0, help="TCP port (default: a free one)")
     p.add_argument("--monitor", action="store_true", help="print every frame that crosses the hub")
     p.set_defaults(func=_bus)
 
@@ -97,10 +100,23 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["sim"]:  # everything after "sim" belongs to the simulator's own parser
         return _exec_sim(argv[1:])
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)  # a malformed command line: one line, exit 2 (cli_args.Parser)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    return int(args.func(args) or 0)
+    prog = f"{parser.prog} {args.command}"
+    try:
+        validate = getattr(args, "validate", None)
+        if validate is not None:  # before the subcommand starts anything
+            validate(args)
+        return int(args.func(args) or 0)
+    except UsageError as exc:
+        return fail(prog, str(exc))
+    except Exception as exc:  # noqa: BLE001 - a bug or a broken machine: one line, -v for the traceback
+        if args.verbose:
+            raise
+        print(f"{prog}: {type(exc).__name__}: {exc} (run with -v for the traceback)", file=sys.stderr, flush=True)
+        return 1
 
 
 if __name__ == "__main__":

@@ -40,6 +40,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ersac_hil.cli_args import UsageError, finite_float, non_negative_int, positive_int
+
 __all__ = ["register", "Child", "ChildFailed", "DemoConfig", "Pair", "Stack", "cli_argv", "run_demo"]
 
 GRACE_S = 5.0
@@ -403,9 +405,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``ersac-hil`` parser."""
     p = sub.add_parser("demo", help="router, CAN hub, simulator, agent and learner on loopback; a report")
     p.add_argument("--task", choices=("bracing", "lifting"), default="bracing")
-    p.add_argument("--kappa", type=float, default=2.0, help="risk sensitivity (default 2)")
-    p.add_argument("--episodes", type=int, default=45, help="episodes to learn for (default 45)")
-    p.add_argument("--seed", type=int, default=1, help="run and simulator seed (default 1)")
+    p.add_argument("--kappa", type=finite_float, default=2.0, help="risk sensitivity (default 2)")
+    p.add_argument("--episodes", type=positive_int, default=45, help="episodes to learn for (default 45)")
+    p.add_argument("--seed", type=non_negative_int, default=1, help="run and simulator seed (default 1)")
     p.add_argument("--out", default="demo-report", help="report directory (default ./demo-report)")
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
     p.add_argument("--secure", action="store_true",
@@ -415,4 +417,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="dashboard port (default 8050; 0 = a free one)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
-    p.set_defaults(func=_demo)
+    p.set_defaults(func=_demo, validate=_validate)
+
+
+def _validate(args: argparse.Namespace) -> None:
+    """What the daemon child would refuse (robot name, kappa range...), refused before any child."""
+    from ersac_hil.daemon.config import ConfigError, DaemonConfig
+    try:
+        DaemonConfig(robot=args.robot, task=args.task, kappa=args.kappa, episodes=args.episodes,
+                     seed=args.seed)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None

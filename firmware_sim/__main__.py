@@ -18,8 +18,15 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad input: one line (``ersac-hil sim: error: ...``) and exit 2, no usage block."""
+
+    def error(self, message: str):  # noqa: ANN201 - NoReturn
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ersac-hil sim", description="MuJoCo uBot bench as CANopen nodes")
+    p = _Parser(prog="ersac-hil sim", description="MuJoCo uBot bench as CANopen nodes")
     p.add_argument("--bus-interface", help="python-can interface (virtual, remote, socketcan)")
     p.add_argument("--bus-channel", help="channel (ws://127.0.0.1:PORT/ for the loopback hub, vcan0, ...)")
     p.add_argument("--bitrate", type=int, default=None)
@@ -57,8 +64,38 @@ def snapshot(path: str, scenario: str, seed: int, at: float) -> None:
     plt.imsave(path, pixels)
 
 
+def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: ANN202
+    """Refuse bad input before anything starts; returns the bus configuration (or None for
+    --snapshot)."""
+    import math
+    from pathlib import Path
+
+    from protocol.can.busconfig import BusConfigError, probe_bus, resolve_bus_config
+
+    if not (math.isfinite(args.control_period) and 0 < args.control_period <= 1):
+        parser.error(f"--control-period must be in (0, 1] s, got {args.control_period}")
+    if args.substeps < 1:
+        parser.error(f"--substeps must be at least 1, got {args.substeps}")
+    if args.seed < 0:
+        parser.error(f"--seed must not be negative, got {args.seed}")
+    if args.snapshot:
+        if not math.isfinite(args.at) or args.at < 0:
+            parser.error(f"--at must not be negative, got {args.at}")
+        if not Path(args.snapshot).resolve().parent.is_dir():
+            parser.error(f"--snapshot: no directory {Path(args.snapshot).resolve().parent}")
+        return None
+    try:
+        config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
+        probe_bus(config)
+    except BusConfigError as exc:
+        parser.error(str(exc))
+    return config
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    config = _check(parser, args)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s sim %(levelname)s %(message)s")
     if args.snapshot:
@@ -73,13 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     from firmware_sim.nodes.simbench import SimulatedBench
-    from protocol.can.busconfig import BusConfigError, resolve_bus_config
 
-    try:
-        config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
-    except BusConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
     stop = threading.Event()
     received: list[int] = []
 

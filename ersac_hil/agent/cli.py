@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import logging
 
+from ersac_hil.cli_args import UsageError, fail, positive_float, positive_int, usable_bus
+
 log = logging.getLogger(__name__)
 
 
@@ -13,7 +15,7 @@ def register(subparsers) -> None:
     p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
     p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")
     p.add_argument("--bus-channel", help="vcan0 / can0 / ws://127.0.0.1:PORT/ ...")
-    p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--bitrate", type=positive_int, default=None)
     from ersac_hil.zenoh_session import add_zenoh_arguments
     add_zenoh_arguments(p)
     p.add_argument("--mode", choices=("client", "peer"), default="client",
@@ -23,12 +25,22 @@ def register(subparsers) -> None:
     p.add_argument("--record-format", dest="record_format", choices=("blf", "asc"), default="blf",
                    help="CAN trace format (default blf)")
     p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
-    p.add_argument("--period-ms", type=float, default=5.0, help="control period (default 5 ms)")
-    p.add_argument("--deadline-ms", type=float, default=250.0,
+    p.add_argument("--period-ms", type=positive_float, default=5.0, help="control period (default 5 ms)")
+    p.add_argument("--deadline-ms", type=positive_float, default=250.0,
                    help="how long a SYNC cycle waits for its TPDOs (default 250 ms)")
-    p.add_argument("--heartbeat-timeout-ms", type=float, default=600.0,
+    p.add_argument("--heartbeat-timeout-ms", type=positive_float, default=600.0,
                    help="a node silent this long is lost (default 600 ms)")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, validate=_validate)
+
+
+def _validate(args: argparse.Namespace) -> None:
+    """The robot's key space, and a bus that opens (before any session or thread starts)."""
+    from protocol.zenoh import KeySpace
+    try:
+        KeySpace(args.robot, args.prefix)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    usable_bus(args.bus_interface, args.bus_channel, args.bitrate)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -52,8 +64,7 @@ def _run(args: argparse.Namespace) -> int:
                        mode=config.zenoh_mode)  # refuse a bad or insecure session config up front
         service = AgentService(config)
     except (BusConfigError, ValueError) as exc:
-        print(f"ersac-hil agent: {exc}")
-        return 2
+        return fail("ersac-hil agent", str(exc))
 
     class _Announcing:
         def start(self) -> None:

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import can
 
+from protocol.can.busconfig import BusConfig, open_bus, unavailable_reason
+
 
 @dataclass(frozen=True)
 class BackendStatus:
@@ -19,18 +21,11 @@ def vcan_status(channel: str = "vcan0") -> BackendStatus:
     Creating the interface (``ip link add vcan0 type vcan``) needs root and a kernel with
     CONFIG_CAN_VCAN; this only probes, it never changes the system.
     """
+    config = BusConfig("socketcan", channel)
     try:
-        bus = can.Bus(interface="socketcan", channel=channel)
-    except OSError as exc:
-        if exc.errno == 97:
-            why = "the kernel has no SocketCAN (CONFIG_CAN unset: address family not supported)"
-        elif exc.errno == 19:
-            why = f"no {channel} interface (create it: ip link add {channel} type vcan && ip link set {channel} up)"
-        else:
-            why = f"socketcan {channel}: {exc}"
-        return BackendStatus("socketcan", False, why)
-    except (ImportError, can.CanError) as exc:
-        return BackendStatus("socketcan", False, f"socketcan {channel}: {exc}")
+        bus = open_bus(config)
+    except (OSError, ImportError, can.CanError) as exc:
+        return BackendStatus("socketcan", False, unavailable_reason(config, exc))
     bus.shutdown()
     return BackendStatus("socketcan", True, f"socketcan on {channel}")
 

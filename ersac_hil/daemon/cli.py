@@ -18,6 +18,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ersac_hil.cli_args import UsageError, positive_float, tcp_port
+
 __all__ = ["register"]
 
 
@@ -158,38 +160,67 @@ def _state(args: argparse.Namespace) -> int:
     return _client_call(args, lambda c: c.state())
 
 
+def _payload(build):  # noqa: ANN001, ANN202
+    """Build a request payload from the command line: its own validation is the usage check,
+    made before any session is opened."""
+    from protocol.zenoh import PayloadError
+    try:
+        return build()
+    except PayloadError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _check_kappa(args: argparse.Namespace) -> None:
+    from protocol.zenoh import KappaCommand
+    if args.action == "get" and args.value is not None:
+        raise UsageError("kappa get takes no value")
+    if args.action == "set":
+        if args.value is None:
+            raise UsageError("kappa set needs a VALUE")
+        _payload(lambda: KappaCommand(args.value))
+
+
 def _kappa(args: argparse.Namespace) -> int:
     if args.action == "get":
-        if args.value is not None:
-            return _fail("kappa get takes no value")
         return _client_call(args, lambda c: c.state(), lambda s: f"{s.kappa:g}")
-    if args.value is None:
-        return _fail("kappa set needs a VALUE")
     return _client_call(args, lambda c: c.set_kappa(args.value))
+
+
+def _check_weights(args: argparse.Namespace) -> None:
+    from protocol.zenoh import WeightsCommand
+    if args.action == "get" and args.weight:
+        raise UsageError("weights get takes no values")
+    if args.action == "set":
+        if not args.weight:
+            raise UsageError("weights set needs NAME=VALUE ...")
+        _payload(lambda: WeightsCommand(dict(args.weight)))
 
 
 def _weights(args: argparse.Namespace) -> int:
     if args.action == "get":
-        if args.weight:
-            return _fail("weights get takes no values")
         return _client_call(args, lambda c: c.state(), lambda s: json.dumps(dict(s.weights)))
-    if not args.weight:
-        return _fail("weights set needs NAME=VALUE ...")
     return _client_call(args, lambda c: c.set_weights(dict(args.weight)))
 
 
-def _critic(args: argparse.Namespace) -> int:
+def _check_critic(args: argparse.Namespace) -> None:
     from protocol.zenoh import CriticQuery
     if (args.grid is None) == (not args.theta):
-        return _fail("give --theta (repeatable) or --grid N")
-    query = CriticQuery(tuple(args.theta or ()), args.grid, args.kappa)
-    return _client_call(args, lambda c: c.critic(query))
+        raise UsageError("give --theta (repeatable) or --grid N")
+    args.query = _payload(lambda: CriticQuery(tuple(args.theta or ()), args.grid, args.kappa))
+
+
+def _critic(args: argparse.Namespace) -> int:
+    return _client_call(args, lambda c: c.critic(args.query))
+
+
+def _check_select(args: argparse.Namespace) -> None:
+    from protocol.zenoh import SelectQuery
+    args.query = _payload(lambda: SelectQuery(args.kappa, dict(args.weight) if args.weight else None,
+                                              args.adopt))
 
 
 def _select(args: argparse.Namespace) -> int:
-    from protocol.zenoh import SelectQuery
-    query = SelectQuery(args.kappa, dict(args.weight) if args.weight else None, args.adopt)
-    return _client_call(args, lambda c: c.select(query))
+    return _client_call(args, lambda c: c.select(args.query))
 
 
 # --------------------------------------------------------------------------- report
@@ -218,7 +249,7 @@ def _client_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
     p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
     add_zenoh_arguments(p)
-    p.add_argument("--timeout", type=float, default=10.0, help="seconds per request (default 10)")
+    p.add_argument("--timeout", type=positive_float, default=10.0, help="seconds per request (default 10)")
     p.add_argument("--json", action="store_true", help="print the reply payload as JSON")
 
 
@@ -261,7 +292,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     if "router" not in sub.choices:
         p = sub.add_parser("router", help="Zenoh router (loopback by default; TLS + access control "
                                           "with --zenoh-config)")
-        p.add_argument("--port", type=int, default=7447,
+        p.add_argument("--port", type=tcp_port, default=7447,
                        help="listen on tcp/127.0.0.1:PORT (default 7447; 0 = a free one) "
                             "unless --zenoh or --zenoh-config say where")
         add_zenoh_arguments(p, listens=True)
@@ -275,20 +306,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("action", choices=("get", "set"))
     p.add_argument("value", nargs="?", type=float)
     _client_options(p)
-    p.set_defaults(func=_kappa)
+    p.set_defaults(func=_kappa, validate=_check_kappa)
 
     p = sub.add_parser("weights", help="get or set the cost-term weights (re-costs every episode)")
     p.add_argument("action", choices=("get", "set"))
     p.add_argument("weight", nargs="*", type=_weight, metavar="NAME=VALUE")
     _client_options(p)
-    p.set_defaults(func=_weights)
+    p.set_defaults(func=_weights, validate=_check_weights)
 
     p = sub.add_parser("critic", help="critic J~, r~, F~ at points or on a grid")
     p.add_argument("--theta", action="append", type=_floats, help="a point, comma-separated; repeatable")
     p.add_argument("--grid", type=int, help="N points per dimension over the task box")
     p.add_argument("--kappa", type=float, help="kappa for F~ (default: the learner's)")
     _client_options(p)
-    p.set_defaults(func=_critic)
+    p.set_defaults(func=_critic, validate=_check_critic)
 
     p = sub.add_parser("select", help="offline policy selection: minimise F~ = J~ + kappa r~")
     p.add_argument("--kappa", type=float, required=True)
@@ -296,7 +327,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="cost-term weight for this selection (repeatable)")
     p.add_argument("--adopt", action="store_true", help="make the selected theta the policy mean")
     _client_options(p)
-    p.set_defaults(func=_select)
+    p.set_defaults(func=_select, validate=_check_select)
 
     p = sub.add_parser("report", help="plots and summary.json of a run")
     p.add_argument("run_id", help="run id, or 'latest'")

@@ -86,6 +86,28 @@ def resolve_bus_config(interface: str | None = None, channel: str | None = None,
                      int(resolved.get("bitrate") or DEFAULT_BITRATE))
 
 
+def unavailable_reason(config: BusConfig, exc: Exception) -> str:
+    """Why opening ``config`` failed with ``exc``, in words a user can act on."""
+    errno = getattr(exc, "errno", None)
+    if config.interface == "socketcan" and errno == 97:
+        return "the kernel has no SocketCAN (CONFIG_CAN unset: address family not supported)"
+    if config.interface == "socketcan" and errno == 19:
+        return (f"no {config.channel} interface (create it: ip link add {config.channel} type vcan "
+                f"&& ip link set {config.channel} up)")
+    if config.interface == "remote" and isinstance(exc, OSError):
+        return f"no CAN hub answers at {config.channel} ({exc.strerror or exc}; start one: ersac-hil bus)"
+    return f"{config.describe()}: {exc}"
+
+
+def probe_bus(config: BusConfig) -> None:
+    """Open and close ``config`` once; ``BusConfigError`` saying why when it cannot be opened."""
+    try:
+        bus = open_bus(config)
+    except (OSError, ImportError, can.CanError, ValueError) as exc:
+        raise BusConfigError(f"cannot open CAN bus {config.describe()}: {unavailable_reason(config, exc)}") from exc
+    bus.shutdown()
+
+
 def open_bus(config: BusConfig) -> can.BusABC:
     """Open the python-can bus described by ``config`` (caller shuts it down)."""
     return can.Bus(**config.kwargs())
