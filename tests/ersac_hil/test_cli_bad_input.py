@@ -42,6 +42,8 @@ BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
     (("critic", "--zenoh", NO_ROUTER), "--theta"),
     (("select", "--kappa", "1e9", "--zenoh", NO_ROUTER), "above the maximum"),
     (("report", "latest", "--db", "{tmp}/none.db", "--out", "{tmp}/report"), "no store"),
+    (("certs", "init", "{tmp}/certs", "--days", "0"), "days must be in"),
+    (("certs", "init", "{tmp}/certs", "--router", "nonsense"), "is not of the form"),
     (("demo", "--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
     (("demo", "--kappa", "nan", "--out", "{tmp}/demo"), "not a finite number"),
     (("demo", "--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
