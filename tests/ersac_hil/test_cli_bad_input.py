@@ -44,6 +44,8 @@ BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
     (("report", "latest", "--db", "{tmp}/none.db", "--out", "{tmp}/report"), "no store"),
     (("certs", "init", "{tmp}/certs", "--days", "0"), "days must be in"),
     (("certs", "init", "{tmp}/certs", "--router", "nonsense"), "is not of the form"),
+    (("reproduce", "bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
+    (("reproduce", "juggling", "--out", "{tmp}/results"), "invalid choice"),
     (("demo", "--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
     (("demo", "--kappa", "nan", "--out", "{tmp}/demo"), "not a finite number"),
     (("demo", "--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
