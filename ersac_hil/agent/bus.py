@@ -2,7 +2,8 @@
 
 ``AgentBus`` owns one ``canopen.Network`` on a ``BusConfig`` with a ``RemoteNode`` per bench
 device (built from the EDS files; PDO maps read from the object dictionary, never uploaded
-over SDO). It produces the agent's heartbeat (``HeartbeatProducer``), keeps the age of every
+over SDO). NMT commands and the nodes' NMT states are canopen's NMT master (``network.nmt``,
+``node.nmt``); it produces the agent's heartbeat (``HeartbeatProducer``), keeps the age of every
 node's heartbeat itself (canopen has no heartbeat consumer), collects EMCY messages, and runs
 the cyclic exchange::
 
@@ -45,8 +46,6 @@ from protocol.can.objects import Scale
 from protocol.can.pdo import pdo_maps, pdo_struct
 
 log = logging.getLogger(__name__)
-
-NMT_STATES = {0: "BOOTUP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
 @dataclass(frozen=True)
@@ -97,7 +96,6 @@ class AgentBus:
         self._heartbeat: HeartbeatProducer | None = None
         self._cond = threading.Condition()
         self._hb_seen: dict[str, float] = {}
-        self._hb_state: dict[str, int] = {}
         self._emcy: list[EmcyEvent] = []
         self._tpdo_device: dict[int, str] = {}
         self._tpdo_keys: dict[int, tuple[tuple[int, int], ...]] = {}
@@ -122,8 +120,7 @@ class AgentBus:
             node.tpdo.read(from_od=True)
             node.rpdo.read(from_od=True)
             node.emcy.add_callback(lambda e, name=dev.name: self._on_emcy(name, e))
-            net.subscribe(cobid.heartbeat(dev.node_id),
-                          lambda can_id, data, ts, name=dev.name: self._on_heartbeat(name, data))
+            node.nmt.add_heartbeat_callback(lambda state, name=dev.name: self._on_heartbeat(name))
             self.nodes[dev.name] = node
             # cyclic PDOs bypass canopen's per-variable machinery: one struct per frame
             specs = {(p.direction, p.number): p for p in pdo_maps(dev)}
@@ -169,10 +166,11 @@ class AgentBus:
             self._heartbeat.stop()
 
     # -- heartbeats --------------------------------------------------------------------------
-    def _on_heartbeat(self, name: str, data: bytes) -> None:
+    def _on_heartbeat(self, name: str) -> None:
+        """canopen's NMT master tracks each node's state; its age is kept here (canopen has
+        no heartbeat consumer)."""
         with self._cond:
             self._hb_seen[name] = time.monotonic()
-            self._hb_state[name] = data[0] & 0x7F if data else -1
 
     def heartbeat_ages(self) -> dict[str, float | None]:
         """Seconds since each device's last heartbeat (``None``: never heard)."""
@@ -184,8 +182,8 @@ class AgentBus:
     def nmt_states(self) -> dict[str, str | None]:
         """NMT state each device last reported in its heartbeat."""
         with self._cond:
-            return {d.name: NMT_STATES.get(self._hb_state[d.name], str(self._hb_state[d.name]))
-                    if d.name in self._hb_state else None for d in self.devices}
+            heard = set(self._hb_seen)
+        return {d.name: self.nodes[d.name].nmt.state if d.name in heard else None for d in self.devices}
 
     def present(self, device: Device | str) -> bool:
         """Whether the device's heartbeat is fresh."""
@@ -232,17 +230,18 @@ class AgentBus:
     # -- NMT -------------------------------------------------------------------------------
     def nmt_start(self) -> None:
         """NMT start remote node (broadcast): every node to OPERATIONAL."""
-        self._nmt(0x01)
+        self._nmt("OPERATIONAL")
 
     def nmt_preop(self) -> None:
         """NMT enter pre-operational (broadcast): cyclic traffic stops."""
-        self._nmt(0x80)
+        self._nmt("PRE-OPERATIONAL")
 
-    def _nmt(self, command: int) -> None:
+    def _nmt(self, state: str) -> None:
+        """canopen's NMT master of the network (node-id 0: every node)."""
         try:
-            self.net.send_message(cobid.NMT, bytes([command, 0]))
+            self.net.nmt.state = state
         except (can.CanError, OSError) as exc:
-            raise BusDown(f"NMT 0x{command:02X} not sent: {exc}") from exc
+            raise BusDown(f"NMT {state} not sent: {exc}") from exc
 
     # -- SDO -------------------------------------------------------------------------------
     def write(self, device: Device | str, index: int, subindex: int, value: float,

@@ -13,8 +13,7 @@ import canopen
 
 from protocol.can import cobid
 from protocol.can.bench import AGENT_NODE_ID, HEARTBEAT_PERIOD_MS
-
-OPERATIONAL = 5
+from protocol.can.nmt import OPERATIONAL
 
 
 class HeartbeatProducer:

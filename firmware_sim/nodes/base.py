@@ -21,11 +21,12 @@ import threading
 import time
 
 import canopen
-from canopen.nmt import NmtSlave
+from canopen.nmt import NMT_COMMANDS, NmtSlave
 from canopen.sdo import SdoAbortedError
 
 from protocol.can import cobid
 from protocol.can.bench import AGENT_NODE_ID, Device, object_dictionary
+from protocol.can.nmt import INITIALISING, OPERATIONAL, PRE_OPERATIONAL
 from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
 from protocol.can.sdo import check_range
@@ -33,7 +34,6 @@ from protocol.can.sdo import check_range
 log = logging.getLogger(__name__)
 
 Key = tuple[int, int]
-OPERATIONAL, PRE_OPERATIONAL, INITIALISING = 5, 127, 0
 WATCHDOG_TICK_S = 0.02
 """Heartbeat production and consumer check resolution (loss detected within 20 ms)."""
 
@@ -105,8 +105,8 @@ class _Nmt(NmtSlave):
         old = self._state
         cmd, target = struct.unpack_from("BB", data)
         super().on_command(can_id, data, timestamp)
-        if target in (self.id, 0) and cmd in (0x81, 0x82):
-            self._node._after_reset(full=cmd == 0x81)
+        if target in (self.id, 0) and cmd in (NMT_COMMANDS["RESET"], NMT_COMMANDS["RESET COMMUNICATION"]):
+            self._node._after_reset(full=cmd == NMT_COMMANDS["RESET"])
         elif self._state != old:
             self._node._state_changed()
 
