@@ -9,20 +9,20 @@ Reads of stiffness, damping and current limit are live (what the firmware really
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+import threading
+from typing import Protocol
 
 from canopen.sdo import SdoAbortedError
 
 from firmware_sim.controllers import ConfigRangeError, ConfigStateError, JointController
 from firmware_sim.plant import AXES
 from firmware_sim.nodes.base import Key, NodeApplication
+from firmware_sim.simulator import Simulator
 from protocol.can import objects as o
 from protocol.can.bench import Device
 from protocol.can.objects import Control, Index, Status
 from protocol.can.sdo import AbortCode
 
-if TYPE_CHECKING:
-    from firmware_sim.nodes.simbench import SimulatedBench
 
 _ACTUAL_VALUES = frozenset({Index.POSITION, Index.VELOCITY, Index.CURRENT, Index.VOLTAGE, Index.PITCH,
                             Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
@@ -41,12 +41,24 @@ def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
     return missing if math.isnan(value) else scale.to_raw(value)
 
 
+class Host(Protocol):
+    """What a device application needs from the bench it runs on (``SimulatedBench``)."""
+
+    sim: Simulator
+    """The plant: physics, firmware boards and scenario, stepped one control period at a time."""
+    lock: threading.RLock
+    """Held around every access to ``sim`` (the physics step runs under it)."""
+
+    def reset(self, scenario: str, seed: int) -> None:
+        """Start an episode of ``scenario``: physics and every node back to their defaults."""
+
+
 class DeviceApp(NodeApplication):
     """Common behaviour: enable with NMT OPERATIONAL + control word ENABLE, safe state on
     heartbeat loss, fault reset, status word."""
 
-    def __init__(self, bench: "SimulatedBench", device: Device) -> None:
-        self.bench, self.device = bench, device
+    def __init__(self, host: Host, device: Device) -> None:
+        self.host, self.device = host, device
         self._axis_idx = [AXES.index(j) for j in device.joints]
         self.control = Control(0)
         self.safe = False
@@ -54,19 +66,19 @@ class DeviceApp(NodeApplication):
 
     @property
     def board(self):
-        return self.bench.sim.controller(self.device.name) if self.device.joints else None
+        return self.host.sim.controller(self.device.name) if self.device.joints else None
 
     def _update_enable(self) -> None:
         if self.board is not None:
             self.board.set_enabled(self.operational and bool(self.control & Control.ENABLE))
 
     def on_nmt_state(self, state: str) -> None:
-        with self.bench.lock:
+        with self.host.lock:
             self.operational = state == "OPERATIONAL"
             self._update_enable()
 
     def on_heartbeat_lost(self) -> None:
-        with self.bench.lock:
+        with self.host.lock:
             self.safe = True
             if self.board is not None:
                 self.board.enter_safe_state("agent heartbeat lost")
@@ -107,7 +119,7 @@ class DeviceApp(NodeApplication):
         self.node.set_value(Index.STATUS, 0, int(self.status()))
 
     def _sample_axes(self, position_scale: o.Scale) -> None:
-        arrays = self.bench.sim.axis_arrays()
+        arrays = self.host.sim.axis_arrays()
         idx = self._axis_idx
         set_value = self.node.set_value
         for index, scale, values in zip(_AXIS_INDEXES, (position_scale, o.VELOCITY, o.CURRENT, o.VOLTAGE),
@@ -117,7 +129,7 @@ class DeviceApp(NodeApplication):
 
     def on_config(self, key: Key, value) -> None:
         try:
-            with self.bench.lock:
+            with self.host.lock:
                 self.configure(key, value)
         except ConfigRangeError as exc:
             raise SdoAbortedError(AbortCode.VALUE_RANGE) from exc
@@ -132,10 +144,10 @@ class DeviceApp(NodeApplication):
     def read(self, key: Key) -> int | None:
         index, sub = key
         if index == Index.STATUS:
-            with self.bench.lock:
+            with self.host.lock:
                 return int(self.status())
         if index in _ACTUAL_VALUES:  # a drive answers with the present value, not the last TPDO
-            with self.bench.lock:
+            with self.host.lock:
                 self.sample()
             return None
         if index == Index.CURRENT_LIMIT and self.board is not None and sub:
@@ -149,7 +161,7 @@ class WheelsApp(DeviceApp):
         if (Index.TORQUE_COMMAND, 1) in changed or (Index.TORQUE_COMMAND, 2) in changed:
             left, right = (max(-20.0, min(20.0, o.TORQUE.from_raw(int(self.node.value(Index.TORQUE_COMMAND, s)))))
                            for s in (1, 2))
-            self.bench.sim.set_wheel_torque(left, right)
+            self.host.sim.set_wheel_torque(left, right)
 
     def sample(self) -> None:
         super().sample()
@@ -161,7 +173,7 @@ class JointApp(DeviceApp):
 
     @property
     def board(self) -> JointController:
-        return self.bench.sim.controller(self.device.name)
+        return self.host.sim.controller(self.device.name)
 
     def on_commands(self, changed: dict[Key, int]) -> None:
         """Control word first (enabling holds the present pose), then the setpoints of the
@@ -239,10 +251,10 @@ class JointApp(DeviceApp):
 
 class ImuApp(DeviceApp):
     def status(self) -> Status:
-        return super().status() | (Status.FALLEN if self.bench.sim.status.fallen else Status(0))
+        return super().status() | (Status.FALLEN if self.host.sim.status.fallen else Status(0))
 
     def sample(self) -> None:
-        imu = self.bench.sim.imu()
+        imu = self.host.sim.imu()
         s = self.status()
         values = {Index.PITCH: o.PITCH.to_raw(imu.pitch), Index.PITCH_RATE: o.PITCH_RATE.to_raw(imu.pitch_rate),
                   Index.PITCH_ACCELERATION: o.PITCH_ACCELERATION.to_raw(imu.pitch_acc),
@@ -259,20 +271,20 @@ class TestBenchApp(DeviceApp):
         index, _ = key
         if index == Index.RESET and value == 1:
             scenario = o.Scenario(int(self.node.value(Index.SCENARIO)))
-            self.bench.reset(SCENARIO_NAMES[scenario], int(self.node.value(Index.SEED)))
+            self.host.reset(SCENARIO_NAMES[scenario], int(self.node.value(Index.SEED)))
         elif index == Index.IMPACT_TRIGGER and value == 1:
-            if self.bench.sim.scenario != "bracing":
+            if self.host.sim.scenario != "bracing":
                 raise ConfigStateError("impact trigger outside the bracing scenario")
-            self.bench.sim.trigger_impact()
+            self.host.sim.trigger_impact()
         elif index == Index.BALANCE_FREE:
-            self.bench.sim.balance_free = bool(value)
+            self.host.sim.balance_free = bool(value)
 
     def read(self, key: Key) -> int | None:
         index, sub = key
         if index == Index.STATUS:
             return super().read(key)
-        with self.bench.lock:
-            t = self.bench.sim.truth
+        with self.host.lock:
+            t = self.host.sim.truth
         if index == Index.IMPACT_MOMENTUM:
             return _raw(o.MOMENTUM, t.impact_momentum)
         if index == Index.CABLE_TENSION and sub:
