@@ -382,23 +382,11 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
 
 
 def _demo(args: argparse.Namespace) -> int:
-    stop = threading.Event()
-    received: list[int] = []
-
-    def on_signal(signum, frame) -> None:  # noqa: ANN001
-        received.append(signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
-                            secure=args.secure, linger=args.linger, dashboard=args.dashboard,
-                            dashboard_port=args.dashboard_port)
-        code = run_demo(config, stop, lambda line: print(line, flush=True))
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    return 128 + received[0] if received else code
+    from ersac_hil.lifecycle import until_signal
+    config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
+                        secure=args.secure, linger=args.linger, dashboard=args.dashboard,
+                        dashboard_port=args.dashboard_port)
+    return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -3,7 +3,8 @@
     python -m firmware_sim --bus-interface remote --bus-channel ws://127.0.0.1:PORT/ --seed 3
     python -m firmware_sim --snapshot out.png --scenario bracing
 
-Runs until SIGINT/SIGTERM, then takes every node off the bus and closes it.
+Runs until SIGINT/SIGTERM (awaited with ``signal.sigwait``: this package cannot use
+``ersac_hil.lifecycle``), then takes every node off the bus and closes it.
 """
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import argparse  # noqa: E402
 import logging  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
-import threading  # noqa: E402
+
+_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -111,30 +113,22 @@ def main(argv: list[str] | None = None) -> int:
 
     from firmware_sim.nodes.simbench import SimulatedBench
 
-    stop = threading.Event()
-    received: list[int] = []
-
-    def on_signal(signum, frame):
-        received.append(signum)
-        stop.set()
-
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, on_signal)
+    # SIGINT/SIGTERM stay pending for sigwait below; blocked before any thread starts, so
+    # every thread of the bench inherits the mask and none of them is interrupted
+    signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     bench = SimulatedBench(config, seed=args.seed, realtime=args.realtime,
                            control_period=args.control_period, substeps=args.substeps)
     mode = "real-time" if args.realtime else "lock-step"
     print(f"simulator: {len(bench.nodes)} nodes on {config.describe()}, {mode}, "
           f"{1 / args.control_period:g} Hz", flush=True)
     try:
-        while not stop.wait(0.2):
-            pass
+        received = signal.sigwait(_SIGNALS)
     finally:
         bench.close()
         s = bench.stats
         print(f"simulator stopped: {s.cycles} cycles, {s.resets} resets, {s.overruns} overruns, "
               f"physics {1000 * s.step_seconds / max(s.cycles, 1):.2f} ms/cycle", flush=True)
-    return 128 + received[0] if received else 0
-
+    return 128 + received
 
 if __name__ == "__main__":
     sys.exit(main())
