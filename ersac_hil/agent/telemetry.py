@@ -137,14 +137,6 @@ class Telemetry:
         return self.velocity[WHEELS_SLICE]  # type: ignore[return-value]
 
     @property
-    def wheel_currents(self) -> tuple[float, float]:
-        return self.current[WHEELS_SLICE]  # type: ignore[return-value]
-
-    @property
-    def wheel_voltages(self) -> tuple[float, float]:
-        return self.voltage[WHEELS_SLICE]  # type: ignore[return-value]
-
-    @property
     def torso_position(self) -> float:
         return self.position[TORSO_I]
 
@@ -214,11 +206,6 @@ class Trace:
 
     def joint(self, name: str) -> int:
         return JOINTS.index(name)
-
-    @property
-    def arm_columns(self) -> list[int]:
-        """Columns of the four arm joints."""
-        return list(range(ARM_SLICES["left"].start, ARM_SLICES["right"].stop))
 
     def status_any(self) -> int:
         """OR of every status word of every cycle."""

@@ -42,10 +42,6 @@ class LoopbackHub:
         """What a client passes to ``protocol.can.open_bus``."""
         return BusConfig("remote", self.url)
 
-    @property
-    def client_count(self) -> int:
-        return len(self._server.clients)
-
     def close(self) -> None:
         if self._closed:
             return

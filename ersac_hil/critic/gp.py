@@ -145,10 +145,10 @@ class GP:
                     best_p, best_v = p, v
             if best_p is None or best_v <= -_BAD:
                 raise FitError("GP: no numerically valid hyperparameters found")
-            self._set_state(Xa, ys, std, best_p, best_v)
+            self._set_state(Xa, ys, std, best_p)
         return self
 
-    def _set_state(self, X: np.ndarray, ys: np.ndarray, std: Standardisation, p: np.ndarray, v: float) -> None:
+    def _set_state(self, X: np.ndarray, ys: np.ndarray, std: Standardisation, p: np.ndarray) -> None:
         n, d = X.shape
         K = se_ard(X, X, p[:d], p[d])
         K[np.diag_indices(n)] += math.exp(p[d + 1]) + self._jitter
@@ -157,7 +157,6 @@ class GP:
             raise FitError("GP: Cholesky failed at the fitted hyperparameters")
         self._X, self._std, self._p, self._L = X, std, p, L
         self._alpha = la.chol_solve(L, ys)
-        self._lml = v - n * math.log(std.scale)
         self._fitted = True
 
     # ------------------------------------------------------------ predict
@@ -175,11 +174,6 @@ class GP:
             float(math.exp(self._p[d]) * s2),
             float(math.exp(self._p[d + 1]) * s2),
         )
-
-    def log_marginal_likelihood(self) -> float:
-        """log p(y | X, hyperparameters) of the fitted model, in the units of y."""
-        self._check()
-        return self._lml
 
     def predict(self, Xs: object) -> GPPrediction:
         self._check()

@@ -441,6 +441,3 @@ class LocalCritic:
     def estimate(self, theta: np.ndarray, kappa: float = 0.0, warm_start: LocalFit | None = None) -> CriticEstimate:
         """J~, r~, F~ (and gradients) at theta from the VHGP of theta's neighbourhood."""
         return self.fit(theta, warm_start=warm_start).estimate(theta, kappa)
-
-    def clear_cache(self) -> None:
-        self._cache.clear()

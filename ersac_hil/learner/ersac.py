@@ -305,10 +305,6 @@ class ERSAC:
         return self._store.weights
 
     @property
-    def critic_config(self) -> CriticConfig:
-        return self._critic.config
-
-    @property
     def local_critic(self) -> LocalCritic:
         return self._critic
 

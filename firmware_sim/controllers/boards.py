@@ -184,16 +184,6 @@ class JointController(MotorController):
     def setpoint(self, axis: str) -> float:
         return float(self._fw.q_ref[self._axis(axis)])
 
-    def set_stiffness(self, axis: str, stiffness: float) -> None:
-        i = self._axis(axis)
-        self._fw.stiffness[i] = _in_range(f"{axis}.stiffness", stiffness, *STIFFNESS_RANGE)
-        self._fw.push()
-
-    def set_damping(self, axis: str, damping: float) -> None:
-        i = self._axis(axis)
-        self._fw.damping[i] = _in_range(f"{axis}.damping", damping, *DAMPING_RANGE)
-        self._fw.push()
-
     def set_impedance(self, axis: str, stiffness: float, damping: float) -> None:
         """K (N m/rad) and D (N m s/rad); both validated before either changes."""
         i = self._axis(axis)
@@ -256,8 +246,3 @@ class JointController(MotorController):
             raise ConfigStateError(f"board {self.name!r}: axes not operational (safe state, "
                                    "disabled or disconnected)")
         self._fw.start_spline(self._spline_axes, self._spline)
-
-    def stop_spline(self) -> None:
-        """Abort a running spline; the axes hold the last reference."""
-        for i in self._idx:
-            self._fw.cancel_spline(int(i))

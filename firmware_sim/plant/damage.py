@@ -48,11 +48,6 @@ class CableSpec:
                 and 0 <= self.strength_cv < 0.3):
             raise ValueError(f"invalid cable spec {self}")
 
-    @property
-    def breaking_torque(self) -> float:
-        """Elbow torque (N m) at which a median cable breaks."""
-        return (self.breaking_tension - self.pretension) * self.pulley_radius
-
     def draw_strengths(self, rng: np.random.Generator | None) -> np.ndarray:
         """Breaking tension (N) of the left and right cable, shape (2,); the median without
         ``rng``."""

@@ -154,12 +154,6 @@ class Physics:
             raise UnknownNameError(f"unknown axis {axis!r}; axes are {AXES}") from None
 
     # ---- named state ----------------------------------------------------------------------
-    def joint_position(self, axis: str) -> float:
-        return float(self.data.qpos[self.axes.qpos[self.axis_number(axis)]])
-
-    def joint_velocity(self, axis: str) -> float:
-        return float(self.data.qvel[self.axes.dof[self.axis_number(axis)]])
-
     def set_joint_position(self, axis: str, value: float) -> None:
         self.data.qpos[self.axes.qpos[self.axis_number(axis)]] = value
 
