@@ -46,6 +46,8 @@ BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
     (("certs", "init", "{tmp}/certs", "--router", "nonsense"), "is not of the form"),
     (("reproduce", "bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
     (("reproduce", "juggling", "--out", "{tmp}/results"), "invalid choice"),
+    (("dashboard", "--port", "99999", "--zenoh", NO_ROUTER), "not in 0..65535"),
+    (("dashboard", "--robot", "a/b", "--zenoh", NO_ROUTER), "not a valid key chunk"),
     (("demo", "--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
     (("demo", "--kappa", "nan", "--out", "{tmp}/demo"), "not a finite number"),
     (("demo", "--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
