@@ -7,4 +7,5 @@ declare fixtures and are never imported.
 * ``can_nodes``       - the reference bench (static CiA 301 nodes from the EDS files), a test-side
                         CANopen master, a frame counter, the SDO barrier, actions at a SYNC
 * ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)
+* ``webclient``       - HTTP requests and a server-sent-events reader for the dashboard tests
 """

@@ -22,7 +22,7 @@ import pytest
 from ersac_hil.dashboard.browser import console_errors, headless_chromium, missing
 from ersac_hil.demo import Child
 from helpers.waiting import wait_until
-from webclient import http
+from helpers.webclient import http
 
 ROOT = Path(__file__).resolve().parents[3]
 ARTIFACTS = Path(os.environ.get("ERSAC_ARTIFACTS", ROOT / "artifacts")) / "dashboard"

@@ -14,7 +14,7 @@ import pytest
 
 from helpers.synthetic_agent import SyntheticAgent
 from helpers.waiting import wait_until
-from webclient import EventStream, http
+from helpers.webclient import EventStream, http
 from ersac_hil.daemon.clients import LearnerClient
 from ersac_hil.daemon.config import DaemonConfig
 from ersac_hil.daemon.service import Daemon
