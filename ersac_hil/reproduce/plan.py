@@ -36,12 +36,11 @@ TEST_SCENARIO_BASE = 600_000
 #: Risk contexts of Fig. 6 (paper 5.2): a re-weighting of the lifting cost terms (the others
 #: keep the task's default weights). Translation-averse: a small workspace, raise the weights
 #: of wheel translation and its rate; energy-averse: a low battery, raise the motor-power weight.
-#: Sized on measured lifting episodes (medians of the successful ones: x_wheel_sq 0.39 m^2 s,
-#: xdot_wheel_sq 0.80 m^2/s, power 94 J, total default-weighted cost ~1.8): at 0.001 the
-#: translation terms contribute 0.1 % of the cost; at 1.0 they are ~40 % of the re-weighted
-#: cost. Power at 0.01 is ~half the cost; at 0.05 it is ~85 %.
+#: Sized on measured lifting episodes (lengths in dm; a lift's default-weighted cost ~4.6 of
+#: which ~0.1 translation and ~0.6 energy; raw x_wheel_sq ~10, xdot_wheel_sq ~50-90, power
+#: 40-95 J): at 0.03 each the translation terms are ~2 of a lift's cost, at 0.05 the energy ~3.
 CONTEXTS: dict[str, dict[str, float]] = {
-    "translation_averse": {"x_wheel_sq": 1.0, "xdot_wheel_sq": 1.0},
+    "translation_averse": {"x_wheel_sq": 0.03, "xdot_wheel_sq": 0.03},
     "energy_averse": {"power": 0.05},
 }
 

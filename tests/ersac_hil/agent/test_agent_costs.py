@@ -80,13 +80,14 @@ def test_lifting_terms_rolling_robot():
     pos[:, 5:7] = goal
     tr = trace(n, position=pos, velocity=vel, pitch=pitch)
     terms = LiftingTask().cost_terms(tr)
+    dm = 10.0  # lengths in decimetres, angles in rad
     assert list(terms) == list(TASKS["lifting"].term_names)
-    assert terms["x_wheel_sq"] == pytest.approx(np.sum((r * omega * t) ** 2) * DT)
-    assert terms["xdot_wheel_sq"] == pytest.approx((r * omega) ** 2 * n * DT)
+    assert terms["x_wheel_sq"] == pytest.approx(np.sum((dm * r * omega * t) ** 2) * DT)
+    assert terms["xdot_wheel_sq"] == pytest.approx((dm * r * omega) ** 2 * n * DT)
     assert terms["alpha_sq"] == pytest.approx(0.01 * n * DT)
     assert terms["alphadot_sq"] == 0.0
     h = UBOT.bottle_height(goal, goal, 0.1)
-    assert terms["h_error_sq"] == pytest.approx((1.2 - h) ** 2 * n * DT)
+    assert terms["h_error_sq"] == pytest.approx((dm * (1.2 - h)) ** 2 * n * DT)
     assert terms["power"] == 0.0
     total = TASKS["lifting"].total_cost(terms)
     assert total == pytest.approx(sum(TASKS["lifting"].default_weights[k] * v for k, v in terms.items()))
@@ -114,7 +115,7 @@ def test_a_dropped_bottle_lies_on_the_floor_from_its_emcy_on():
     dropped = task.cost_terms(tr, [EmcyMark(EmcyCode.FALLEN, 10), EmcyMark(EmcyCode.BOTTLE_DROPPED, 60),
                                    EmcyMark(EmcyCode.BOTTLE_DROPPED, 61)])["h_error_sq"]
     assert held == pytest.approx(0.0, abs=1e-12)
-    assert dropped == pytest.approx((1.2 - task.floor_height_m) ** 2 * 40 * DT)
+    assert dropped == pytest.approx((1.2 - task.floor_height_m) ** 2 * 40 * DT / task.length_unit_m ** 2)
 
 
 def test_summary_figures_are_finite_and_named():
