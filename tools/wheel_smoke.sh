@@ -37,6 +37,8 @@ assert all(p.is_file() for p in (UBOT_XML, PENDULUM_XML, BOTTLE_XML))  # MJCF fi
 print("wheel-smoke: package data present")
 PY
 "$work/venv/bin/ersac-hil" bus-load --check
+"$work/venv/bin/ersac-hil" certs init "$work/certs" > /dev/null
+"$work/venv/bin/python" -c "from ersac_hil.certs import role_of_config as r; assert r('$work/certs/observer.json5') == 'observer'"
 "$work/venv/bin/ersac-hil" demo --episodes 3 --out "$work/demo"
 test -s "$work/demo/summary.json"
 echo "wheel-smoke: ok in $((SECONDS - start)) s"
