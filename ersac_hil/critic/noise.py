@@ -36,6 +36,13 @@ from scipy.optimize import minimize
 from .errors import FitError
 
 
+#: Cap of the posterior variance of g used in r~ = exp(g_mean/2 + g_var/4) and the predictive
+#: density (the VHGP's g has prior variance >= 1, CriticConfig.g_variance_min). Where the
+#: residuals say nothing (every v_i >> exp g) the posterior is the prior, whose slope term
+#: alone reached g_var ~ 60 in a bracing demo update: r~ 6.5e6 against a spread of ~6.
+G_VAR_MAX = 1.0
+
+
 @dataclass(frozen=True, eq=False)
 class LogLinearNoise:
     """centre c (d,), coef p = [a, b] (d + 1,), cov C (d + 1, d + 1): posterior of (a, b)."""
@@ -51,14 +58,15 @@ class LogLinearNoise:
         return np.column_stack([np.ones(Xs.shape[0]), np.clip(Xs, self.lo, self.hi) - self.centre]), inside
 
     def predict(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(g_mean, g_var) at Xs (m, d), each (m,)."""
+        """(g_mean, g_var) at Xs (m, d), each (m,); g_var at most G_VAR_MAX."""
         Z, _ = self._z(Xs)
-        return Z @ self.coef, np.maximum(np.einsum("ij,jk,ik->i", Z, self.cov, Z), 0.0)
+        return Z @ self.coef, np.clip(np.einsum("ij,jk,ik->i", Z, self.cov, Z), 0.0, G_VAR_MAX)
 
     def gradient(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(d g_mean / dx, d g_var / dx) at Xs (m, d), each (m, d) (0 where clipped)."""
         Z, inside = self._z(Xs)
-        return self.coef[1:] * inside, 2.0 * (Z @ self.cov[:, 1:]) * inside
+        capped = (np.einsum("ij,jk,ik->i", Z, self.cov, Z) >= G_VAR_MAX)[:, None]
+        return self.coef[1:] * inside, 2.0 * (Z @ self.cov[:, 1:]) * inside * ~capped
 
 
 def fit_log_linear(X: np.ndarray, e: np.ndarray, v: np.ndarray, slope_prior_std: np.ndarray) -> LogLinearNoise:

@@ -412,9 +412,20 @@ class ERSAC:
         clipped = bool(np.any(raw != new_theta))
         offline = False
         if self._interleave > 0 and (self._n_updates + 1) % self._interleave == 0:
-            with single_threaded_blas():
-                sel = minimise_on_fit(fit, self.bounds, kappa, new_theta, self._selection_config())
-            new_theta, offline = sel.theta.copy(), True
+            # a local greedy move: the region is the fit's points within epsilon / 2 of theta
+            # (the whole neighbourhood let the argmin run back to where the run started)
+            cfg = self._selection_config()
+            X = np.asarray(fit.model.X)
+            region = X[np.linalg.norm(X - new_theta, axis=1) <= cfg.radius]
+            if region.shape[0] > 0:
+                with single_threaded_blas():
+                    sel = minimise_on_fit(fit, self.bounds, kappa, new_theta, cfg, region=region)
+                    here = fit.estimate(new_theta, kappa)
+                    there = fit.estimate(sel.theta, kappa)
+                # move only where the critic is confident of the gain: the argmin's F~ plus
+                # two posterior stds of J~ there below F~ at the gradient step's theta
+                if there.F + 2.0 * math.sqrt(max(there.J_var, 0.0)) < here.F:
+                    new_theta, offline = sel.theta.copy(), True
         upd = Update(
             self._n_updates, theta, new_theta.copy(), x, z, J_hat, J_t, r_t, r_p, delta,
             kappa, alpha, False, clipped, int(fit.ids.size), step_scale=scale, offline=offline,

@@ -100,14 +100,18 @@ def select_policy(
         return minimise_on_fit(fit, bounds, kappa, anchor, config)
 
 
-def minimise_on_fit(fit: LocalFit, bounds: np.ndarray, kappa: float, anchor: np.ndarray, config: SelectionConfig) -> Selection:
-    """argmin of F~ of `fit` within `config.radius` of the fit's observations and inside
-    bounds (d, 2); SLSQP from the `n_starts` observed points of lowest F~ (module doc).
-    anchor (d,) is a candidate too (so the result is never worse than it under the model)."""
+def minimise_on_fit(
+    fit: LocalFit, bounds: np.ndarray, kappa: float, anchor: np.ndarray, config: SelectionConfig,
+    region: np.ndarray | None = None,
+) -> Selection:
+    """argmin of F~ of `fit` within `config.radius` of the fit's observations (or of the
+    points `region` (k, d)) and inside bounds (d, 2); SLSQP from the `n_starts` of those
+    points of lowest F~ (module doc).  anchor (d,) is a candidate too (so the result is
+    never worse than it under the model)."""
     lo, hi = bounds[:, 0], bounds[:, 1]
     d = bounds.shape[0]
     with single_threaded_blas():
-        Xd = np.asarray(fit.model.X)
+        Xd = np.asarray(fit.model.X) if region is None else np.asarray(region, dtype=float)
         tree = cKDTree(Xd)
         R2 = config.radius**2
         _, _, Fd = fit.estimate_many(Xd, kappa)

@@ -98,10 +98,14 @@ def test_interleaved_search_moves_to_the_local_argmin_every_k_updates() -> None:
     L = make(interleave_every=4, kappa=2.0)
     ups = run(L, 30)
     real = [u for u in ups if not u.warmup]
-    assert [u.offline for u in ups] == [(u.index + 1) % 4 == 0 and not u.warmup for u in ups]
+    # only every 4th update may move offline, and only where the critic is confident
+    assert all((u.index + 1) % 4 == 0 for u in real if u.offline)
+    assert any(u.offline for u in real)
     for u in real:
-        if u.offline:  # within the trust region of the critic's points
-            assert np.min(np.abs(L.store.points[:u.index + 1, 0] - u.theta_after[0])) <= 0.5 * 0.3 / 2 + 1e-9
+        if u.offline:  # a local greedy move: within epsilon / 2 of a point near theta
+            near = L.store.points[:u.index + 1, 0]
+            assert np.min(np.abs(near - u.theta_after[0])) <= 0.3 / 2 + 1e-9
+            assert abs(u.theta_after[0] - u.theta_before[0]) <= 2 * 0.3 + 1e-9
     R = resume(L)  # the option survives the state round trip
     assert R.get_state()["interleave_every"] == 4
     xa, xb = L.ask(), R.ask()
