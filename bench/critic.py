@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from ersac_hil.critic import GP, VHGP, CriticConfig, CriticError, LocalCritic  # noqa: E402
 from ersac_hil.critic._blas import blas_description  # noqa: E402
 from ersac_hil.critic.datasets import ALL as DATASETS  # noqa: E402
+from ersac_hil.critic.datasets import branin, branin_std, rahbo_sine_cost, rahbo_sine_std  # noqa: E402
 from ersac_hil.learner import ObservationStore  # noqa: E402
 
 Fn = Callable[[np.ndarray], np.ndarray]  # (m, d) -> (m,)
@@ -87,16 +88,6 @@ def _ds(name: str) -> tuple[Fn, Fn]:
     return (lambda X: s.mean(X[:, 0])), (lambda X: s.std(X[:, 0]))
 
 
-def _sig(v: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-v))
-
-
-def _branin(X: np.ndarray) -> np.ndarray:
-    x1, x2 = X[:, 0], X[:, 1]
-    b, c, t = 5.1 / (4 * math.pi**2), 5 / math.pi, 1 / (8 * math.pi)
-    return (x2 - b * x1**2 + c * x1 - 6) ** 2 + 10 * (1 - t) * np.cos(x1) + 10
-
-
 _LIFT_LO = np.array([-1.0, 0.0, -1.0, 0.0, 0.2, 0.2, 0.2])
 _LIFT_HI = np.array([math.pi, 2.5, math.pi, 2.5, 2.0, 2.0, 2.0])
 _LIFT_M = np.array([0.55, 0.45, 0.6, 0.5, 0.5, 0.45, 0.55])  # mean's minimum (unit box)
@@ -120,12 +111,10 @@ def _problems() -> dict[str, CalProblem]:
             sigma=0.05, epsilon=0.2,
         ),
         "rahbo-sine": CalProblem(
-            "rahbo-sine", np.array([0.0]), np.array([2.0]), lambda X: np.sin(2 * math.pi * X[:, 0]),
-            lambda X: _sig(30 * (X[:, 0] - 1)) + 0.1, sigma=0.1, epsilon=0.4,
+            "rahbo-sine", np.array([0.0]), np.array([2.0]), rahbo_sine_cost, rahbo_sine_std, sigma=0.1, epsilon=0.4,
         ),
         "branin": CalProblem(
-            "branin", np.array([-5.0, 0.0]), np.array([10.0, 15.0]), _branin,
-            lambda X: (_sig(2 * (X[:, 0] - 3.2)) + 0.2) * (_sig(2 * X[:, 1]) + 0.2), sigma=0.75, epsilon=3.0,
+            "branin", np.array([-5.0, 0.0]), np.array([10.0, 15.0]), branin, branin_std, sigma=0.75, epsilon=3.0,
         ),
         "lifting-7d": CalProblem(
             "lifting-7d", _LIFT_LO, _LIFT_HI, lambda X: 1.0 + (_LIFT_A * (_unit(X) - _LIFT_M) ** 2).sum(1),

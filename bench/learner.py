@@ -44,7 +44,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from ersac_hil.critic import GP, VHGP, CriticConfig  # noqa: E402  (GP: also MV-BO's model)
 from ersac_hil.critic._blas import blas_description  # noqa: E402
-from ersac_hil.critic.datasets import goldberg  # noqa: E402
+from ersac_hil.critic.datasets import branin, branin_std, goldberg, rahbo_sine_cost, rahbo_sine_std  # noqa: E402
 from ersac_hil.learner import ERSAC  # noqa: E402
 from ersac_hil.learner.ersac import MAX_STEP  # noqa: E402
 
@@ -118,28 +118,6 @@ def _r7(X: np.ndarray) -> np.ndarray:
     return 0.05 + (_B7 * (X - _C7) ** 2).sum(1)
 
 
-def _sig(v: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-v))
-
-
-def _sine_J(X: np.ndarray) -> np.ndarray:
-    return -np.sin(2 * math.pi * X[:, 0])  # RAHBO's sine, as a cost
-
-
-def _sine_r(X: np.ndarray) -> np.ndarray:
-    return _sig(30 * (X[:, 0] - 1)) + 0.1
-
-
-def _branin_J(X: np.ndarray) -> np.ndarray:
-    x1, x2 = X[:, 0], X[:, 1]
-    b, c, t = 5.1 / (4 * math.pi**2), 5 / math.pi, 1 / (8 * math.pi)
-    return (x2 - b * x1**2 + c * x1 - 6) ** 2 + 10 * (1 - t) * np.cos(x1) + 10
-
-
-def _branin_r(X: np.ndarray) -> np.ndarray:
-    return (_sig(2 * (X[:, 0] - 3.2)) + 0.2) * (_sig(2 * X[:, 1]) + 0.2)
-
-
 PROBLEMS = {
     # J falls with theta on [0, 0.8] while the noise std rises (bracing: stiffer arms cost
     # less on average but vary more).  kappa=0 -> 0.80, kappa=2 -> 0.31, kappa=-1 -> 1.
@@ -151,11 +129,11 @@ PROBLEMS = {
                   budget=300, sigma=0.08, eta=0.1, epsilon=0.5, min_neighbours=30, min_observations=30),
     # RAHBO sine (s = 1) as a cost: equal minima at 0.25 (quiet) and 1.25 (noisy); from 1.0
     # the mean falls to the right, F(kappa = 2) to the left.
-    "rahbo-sine": Problem("rahbo-sine", np.array([[0.0, 2.0]]), np.array([1.0]), _sine_J, _sine_r,
+    "rahbo-sine": Problem("rahbo-sine", np.array([[0.0, 2.0]]), np.array([1.0]), rahbo_sine_cost, rahbo_sine_std,
                           budget=150, sigma=0.1, eta=0.1, epsilon=0.4, min_neighbours=15, min_observations=8),
     # heteroscedastic Branin (s = 1): three minima of the mean (0.398), the left one quiet; F's
     # range over the box (~310) would put every basin "within 5 %", so the gap is scaled by 10.
-    "branin": Problem("branin", np.array([[-5.0, 10.0], [0.0, 15.0]]), np.array([2.5, 7.5]), _branin_J, _branin_r,
+    "branin": Problem("branin", np.array([[-5.0, 10.0], [0.0, 15.0]]), np.array([2.5, 7.5]), branin, branin_std,
                       budget=200, sigma=0.5, eta=0.1, epsilon=2.0, min_neighbours=20, min_observations=10, scale=10.0),
 }
 

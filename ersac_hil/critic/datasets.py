@@ -68,3 +68,30 @@ def yuan(rng: np.random.Generator, n: int = 200) -> HeteroscedasticSet:
 
 
 ALL: dict[str, Callable[..., HeteroscedasticSet]] = {"goldberg": goldberg, "williams": williams, "yuan": yuan}
+
+
+# Risk-averse BO benchmarks (Makarova et al. 2021, RAHBO), as costs; inputs X (m, d) -> (m,).
+def sigmoid(v: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-v))
+
+
+def rahbo_sine_cost(X: np.ndarray) -> np.ndarray:
+    """-sin(2 pi x) on [0, 2]: equal minima at 0.25 (quiet) and 1.25 (noisy). X (m, 1)."""
+    return -np.sin(2.0 * np.pi * X[:, 0])
+
+
+def rahbo_sine_std(X: np.ndarray, s: float = 1.0) -> np.ndarray:
+    """sigmoid(30 (x - 1)) s + 0.1. X (m, 1)."""
+    return sigmoid(30.0 * (X[:, 0] - 1.0)) * s + 0.1
+
+
+def branin(X: np.ndarray) -> np.ndarray:
+    """The Branin function on [-5, 10] x [0, 15] (three minima of 0.398). X (m, 2)."""
+    x1, x2 = X[:, 0], X[:, 1]
+    b, c, t = 5.1 / (4 * np.pi**2), 5 / np.pi, 1 / (8 * np.pi)
+    return (x2 - b * x1**2 + c * x1 - 6) ** 2 + 10 * (1 - t) * np.cos(x1) + 10
+
+
+def branin_std(X: np.ndarray, s: float = 1.0) -> np.ndarray:
+    """(sigmoid(2 (x1 - 3.2)) s + 0.2)(sigmoid(2 x2) s + 0.2). X (m, 2)."""
+    return (sigmoid(2.0 * (X[:, 0] - 3.2)) * s + 0.2) * (sigmoid(2.0 * X[:, 1]) * s + 0.2)
