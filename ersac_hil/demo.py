@@ -5,12 +5,14 @@ reverse order (SIGTERM, then SIGKILL after a grace period; also on Ctrl-C/SIGTER
 and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
 
     router   ersac-hil router --port P                      embedded Zenoh router
-    hub      ersac-hil bus --port H                         loopback CAN hub
-    sim      ersac-hil sim --bus-interface remote --bus-channel ws://127.0.0.1:H/ --seed N
-    agent    ersac-hil agent --robot R --bus-interface remote --bus-channel ... --zenoh tcp/127.0.0.1:P
+    sim      ersac-hil sim --bus-interface zenoh --bus-channel ersac-R@tcp/127.0.0.1:P --seed N
+    agent    ersac-hil agent --robot R --bus-interface zenoh --bus-channel ... --zenoh tcp/127.0.0.1:P
     daemon   ersac-hil daemon --robot R --task T --kappa K --episodes E --zenoh ... --db OUT/demo.db --new
 
-``Stack`` starts and stops the router and the simulator/agent pairs (``ersac-hil reproduce``
+The CAN bus of each simulator/agent pair is CAN over Zenoh through the same router
+(``--can zenoh``, the default); ``--can hub`` (and ``--secure``, whose router admits only
+certified roles) puts it on a python-can-remote loopback hub (``ersac-hil bus --port H``) per
+pair instead. ``Stack`` starts and stops the router and the simulator/agent pairs (``ersac-hil reproduce``
 uses it too, with several pairs). The daemon's progress lines are shown as they come; every child's output is kept in
 ``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
 written to ``OUT`` and its location printed.
@@ -174,6 +176,7 @@ class DemoConfig:
             Zenoh links (``#bind=``), to put them on other addresses than the router.
         dashboard: also start ``ersac-hil dashboard`` and print its URL.
         dashboard_port: its port (0: a free one).
+        can: CAN transport of the simulator/agent pair: ``zenoh`` or ``hub`` (see the module doc).
     """
 
     task: str = "bracing"
@@ -190,6 +193,7 @@ class DemoConfig:
     agent_host: str | None = None
     dashboard: bool = False
     dashboard_port: int = 8050
+    can: str = "zenoh"
 
 
 def cli_argv(*args: str) -> list[str]:
@@ -234,11 +238,12 @@ class Stack:
             (``ersac-hil certs init <logs>/../certs``); ``zenoh_args(role)`` gives each role's flags.
         router_host: loopback address the router listens on.
         agent_host: loopback source address of the agents' Zenoh links (``#bind=``).
+        can: ``zenoh`` (CAN over Zenoh through the router; not with ``secure``) or ``hub``.
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
-                 router_host: str = "127.0.0.1", agent_host: str | None = None) -> None:
+                 router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "zenoh") -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -248,6 +253,7 @@ class Stack:
         self.endpoint = f"{'tls' if secure else 'tcp'}/{router_host}:{free_tcp_port(router_host)}"
         self.roles: dict[str, str] = {}
         self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
+        self._can = "hub" if secure else can
         logs.mkdir(parents=True, exist_ok=True)
 
     def zenoh_args(self, role: str, bind: str | None = None) -> list[str]:
@@ -261,7 +267,7 @@ class Stack:
         return child
 
     def start(self) -> Stack:
-        """Certificates (secure), router, then per pair: hub, simulator, agent. Raises ``ChildFailed``."""
+        """Certificates (secure), router, then per pair: (hub,) simulator, agent. Raises ``ChildFailed``."""
         from ersac_hil.zenoh_session import free_tcp_port
 
         if self._secure:
@@ -272,12 +278,16 @@ class Stack:
             r"Zenoh router: ", 20, self.stop)
         for k in range(1, self._n + 1):
             tag = "" if self._n == 1 else str(k)
-            hub_port = free_tcp_port()
-            channel = f"ws://127.0.0.1:{hub_port}/"
-            self.launch(f"hub{tag}", cli_argv("bus", "--port", str(hub_port))).wait_for(
-                r"CAN hub: ws://", 20, self.stop)
-            bus = ["--bus-interface", "remote", "--bus-channel", channel]
             prefix = "ersac" if k == 1 else f"ersac{k}"
+            if self._can == "hub":
+                hub_port = free_tcp_port()
+                channel = f"ws://127.0.0.1:{hub_port}/"
+                self.launch(f"hub{tag}", cli_argv("bus", "--port", str(hub_port))).wait_for(
+                    r"CAN hub: ws://", 20, self.stop)
+                bus = ["--bus-interface", "remote", "--bus-channel", channel]
+            else:
+                channel = f"{prefix}-{self.robot}@{self.endpoint}"
+                bus = ["--bus-interface", "zenoh", "--bus-channel", channel]
             sim = self.launch(f"sim{tag}", cli_argv("sim", *bus, "--seed", str(self._seed + k - 1)))
             agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", self.robot, "--prefix", prefix,
                                                         *bus, *self.zenoh_args("agent", self._agent_host)))
@@ -314,14 +324,15 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         stale.unlink(missing_ok=True)
     started = time.monotonic()
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
-                  secure=config.secure, router_host=config.router_host, agent_host=config.agent_host)
+                  secure=config.secure, router_host=config.router_host, agent_host=config.agent_host,
+                  can=config.can)
     code = 1
     try:
         say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}"
             f"{', TLS + access control' if config.secure else ''}; logs in {stack.logs}")
         stack.start()
         endpoint, (pair,) = stack.endpoint, stack.pairs
-        say(f"demo: router {endpoint}, CAN hub {pair.channel}")
+        say(f"demo: router {endpoint}, CAN {pair.channel}")
         if config.dashboard:
             url = stack.launch("dashboard", cli_argv(
                 "dashboard", "--robot", config.robot, *stack.zenoh_args("operator"),
@@ -358,13 +369,17 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         from ersac_hil.daemon.store import Store
         with Store(db, readonly=True) as store:
             runs = store.runs()
+            attempts = store.attempts(runs[-1].run_id) if runs else []
         if not runs:
             say("demo: no run in the store, no report")
             return code or 1
         summary = write_report(db, runs[-1].run_id, out)
         cost = summary["cost"]
         last = cost["last_10"]
-        say(f"demo: {summary['episodes']} episodes in {time.monotonic() - started:.0f} s; final theta "
+        ends = [a.finished_s for a in attempts if a.finished_s is not None]
+        learning = (f" (learning {max(ends) - min(a.requested_s for a in attempts):.1f} s: first request "
+                    "to last result)") if ends else ""
+        say(f"demo: {summary['episodes']} episodes in {time.monotonic() - started:.0f} s{learning}; final theta "
             f"{[round(t, 4) for t in summary['final_theta']]}; cost mean {cost['all']['mean']:.3f}"
             + (f", last 10 mean {last['mean']:.3f} +/- {last['std']:.3f}" if last["n"] else ""))
         say(f"demo: report in {out} ({', '.join(summary['files'])})")
@@ -385,13 +400,13 @@ def _demo(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import until_signal
     config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
                         secure=args.secure, linger=args.linger, dashboard=args.dashboard,
-                        dashboard_port=args.dashboard_port)
+                        dashboard_port=args.dashboard_port, can=args.can)
     return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``ersac-hil`` parser."""
-    p = sub.add_parser("demo", help="router, CAN hub, simulator, agent and learner on loopback; a report")
+    p = sub.add_parser("demo", help="router, simulator, agent and learner on loopback; a report")
     p.add_argument("--task", choices=("bracing", "lifting"), default="bracing")
     p.add_argument("--kappa", type=finite_float, default=2.0, help="risk sensitivity (default 2)")
     p.add_argument("--episodes", type=positive_int, default=45, help="episodes to learn for (default 45)")
@@ -403,6 +418,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard; prints its URL")
     p.add_argument("--dashboard-port", dest="dashboard_port", type=int, default=8050,
                    help="dashboard port (default 8050; 0 = a free one)")
+    p.add_argument("--can", choices=("zenoh", "hub"), default="zenoh",
+                   help="CAN between simulator and agent: over Zenoh through the router (default) "
+                        "or on a python-can-remote loopback hub (always with --secure)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo, validate=_validate)
