@@ -79,6 +79,19 @@ def in_process(config: BusConfig, n: int, realtime: bool) -> dict[str, list[Epis
             return run_episodes(session, n)
 
 
+def _ready(proc: subprocess.Popen, marker: str) -> str:
+    """Read ``proc``'s output up to its ready line; return the scheduling line before it."""
+    said = ""
+    while True:
+        line = proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"{proc.args[:3]} exited before '{marker}'")
+        if "SCHED_FIFO" in line or "scheduling" in line:
+            said = line.strip()
+        if marker in line and "SCHED_FIFO" not in line:
+            return said
+
+
 def processes(config: BusConfig | None, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
     """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router)."""
     extra = ["--realtime"] if realtime else []
@@ -91,12 +104,14 @@ def processes(config: BusConfig | None, n: int, realtime: bool) -> dict[str, lis
             sim = subprocess.Popen([sys.executable, "-m", "firmware_sim", *bus_args, *extra],
                                    stdout=subprocess.PIPE, text=True)
             procs.append(sim)
-            sim.stdout.readline()
+            scheduling = [_ready(sim, "simulator: ")]
             agent = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT,
                                       *bus_args, "--zenoh", router.endpoint, *extra],
                                      stdout=subprocess.PIPE, text=True)
             procs.append(agent)
-            agent.stdout.readline()
+            scheduling.append(_ready(agent, "agent ready"))
+            if realtime:
+                print("  " + "; ".join(line for line in scheduling if line))
             with router.open_client() as session:
                 return run_episodes(session, n)
     finally:
@@ -112,10 +127,14 @@ def report(backend: str, results: dict[str, list[EpisodeResult]]) -> None:
         sim = statistics.median(r.duration_s for r in rs)
         p50 = statistics.median(r.telemetry.get("sync_latency_p50_ms", float("nan")) for r in rs)
         p99 = max(r.telemetry.get("sync_latency_p99_ms", float("nan")) for r in rs)
+        worst = max(r.telemetry.get("sync_latency_max_ms", float("nan")) for r in rs)
         cycles = statistics.median(r.telemetry.get("n_cycles", 0.0) for r in rs)
+        missed = sum(r.fault_counts.get("late_cycles", 0) for r in rs)
+        total = sum(r.telemetry.get("n_cycles", 0.0) for r in rs)
         print(f"{backend:<10} {task:<8} {len(ok)}/{len(rs)} ok  sim {sim:5.2f} s  wall {wall:5.2f} s  "
               f"RTF {sim / wall:5.2f}  {cycles / wall:6.0f} cycles/s  "
-              f"SYNC latency p50 {p50:5.2f} ms  p99 {p99:6.2f} ms")
+              f"SYNC latency p50 {p50:5.2f} ms  p99 {p99:6.2f} ms  max {worst:6.2f} ms  "
+              f"missed periods {missed}/{total:.0f}")
 
 
 def main() -> int:
@@ -124,6 +143,7 @@ def main() -> int:
     parser.add_argument("--realtime", action="store_true", help="real-time mode (agent and simulator)")
     args = parser.parse_args()
     mode = "real-time" if args.realtime else "lock-step"
+    print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")
     print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {args.episodes} per task; "
           f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
     report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
@@ -131,6 +151,7 @@ def main() -> int:
     with LoopbackHub() as hub:
         report("remote", processes(hub.bus_config, args.episodes, args.realtime))
     report("zenoh", processes(None, args.episodes, args.realtime))
+    print(f"load average {os.getloadavg()[0]:.2f}")
     status = vcan_status("vcan0")
     if status.available:
         report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime))

@@ -116,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
     # SIGINT/SIGTERM stay pending for sigwait below; blocked before any thread starts, so
     # every thread of the bench inherits the mask and none of them is interrupted
     signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    if args.realtime:  # before the bus and its threads exist: they inherit the policy
+        from protocol.can.realtime import request_realtime
+        print(f"simulator: {request_realtime()}", flush=True)
     bench = SimulatedBench(config, seed=args.seed, realtime=args.realtime,
                            control_period=args.control_period, substeps=args.substeps)
     mode = "real-time" if args.realtime else "lock-step"

@@ -54,6 +54,9 @@ def _run(args: argparse.Namespace) -> int:
         timing = BusTiming(period_s=args.period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
                            realtime=args.realtime)
+        if args.realtime:  # before the bus and the Zenoh session exist: their threads inherit it
+            from protocol.can.realtime import request_realtime
+            print(f"agent: {request_realtime()}", flush=True)
         config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
                              zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,

@@ -273,6 +273,7 @@ class EpisodeRunner:
             lat = np.array([s.latency_s for s in run.samples]) * 1000.0
             summary["sync_latency_p50_ms"] = float(np.percentile(lat, 50))
             summary["sync_latency_p99_ms"] = float(np.percentile(lat, 99))
+            summary["sync_latency_max_ms"] = float(lat.max())
         summary.update(run.truth)
         terms: dict[str, float] = {}
         total = None

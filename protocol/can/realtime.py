@@ -1,0 +1,37 @@
+"""Real-time scheduling of a process on the SYNC loop's path (both sides of the bus).
+
+A real bench's balance loop runs at 200 Hz: a SYNC delayed past the 5 ms period is a missed
+deadline. On a loaded Linux machine most of that delay is waiting for a core, so both the
+agent (SYNC producer) and a real-time simulator ask for ``SCHED_FIFO`` at the same priority
+for every thread of their process - Python's and the transport's own (threads created later
+inherit the policy). Where that is not permitted (no CAP_SYS_NICE, RLIMIT_RTPRIO 0, not
+Linux) the process keeps normal scheduling and says why.
+"""
+from __future__ import annotations
+
+import os
+
+__all__ = ["SYNC_PRIORITY", "request_realtime"]
+
+#: SCHED_FIFO priority of the SYNC path (1..99; above ordinary RT housekeeping, below the kernel's).
+SYNC_PRIORITY = 20
+
+
+def request_realtime(priority: int = SYNC_PRIORITY) -> str:
+    """Put every thread of this process under ``SCHED_FIFO`` at ``priority``.
+
+    Returns a one-line message saying what happened (granted, or why not); never raises for
+    a refusal."""
+    if not hasattr(os, "sched_setscheduler") or not os.path.isdir("/proc/self/task"):
+        return "real-time scheduling unavailable on this platform: normal scheduling"
+    param = os.sched_param(priority)
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+        for tid in tids:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+    except PermissionError:
+        return ("SCHED_FIFO not permitted (needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least "
+                f"{priority}, e.g. 'ulimit -r {priority}'): normal scheduling, expect late cycles under load")
+    except OSError as exc:
+        return f"SCHED_FIFO refused ({exc}): normal scheduling"
+    return f"SCHED_FIFO priority {priority} on {len(tids)} threads"

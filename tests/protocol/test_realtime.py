@@ -1,0 +1,46 @@
+"""request_realtime: SCHED_FIFO for every thread of the process where permitted, a clear
+message and normal scheduling where not (run in child processes: the policy is process-wide)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+CODE = (
+    "import os, sys, threading, time\n"
+    "from protocol.can.realtime import request_realtime\n"
+    "if sys.argv[1:] == ['drop']:\n"
+    "    os.setgid(65534); os.setuid(65534)\n"
+    "early = threading.Thread(target=time.sleep, args=(1,)); early.start()\n"
+    "print(request_realtime(7))\n"
+    "late = []\n"
+    "t = threading.Thread(target=lambda: late.append(os.sched_getscheduler(0))); t.start(); t.join()\n"
+    "tids = [int(x) for x in os.listdir('/proc/self/task')]\n"
+    "print(sorted({os.sched_getscheduler(tid) for tid in tids}), late[0], os.sched_getparam(0).sched_priority)\n"
+)
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _run(*args: str) -> list[str]:
+    out = subprocess.run([sys.executable, "-c", CODE, *args], capture_output=True, text=True, timeout=60,
+                         cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="no sched_setscheduler on this platform")
+def test_granted_or_refused_with_a_reason():
+    message, policies = _run()
+    if message.startswith("SCHED_FIFO priority 7"):
+        assert policies == f"[{os.SCHED_FIFO}] {os.SCHED_FIFO} 7"  # every thread, and new ones inherit
+    else:
+        assert "not permitted" in message and policies.startswith(f"[{os.SCHED_OTHER}]")
+
+
+@pytest.mark.skipif(not hasattr(os, "setuid") or os.geteuid() != 0, reason="needs root to drop to an unprivileged user")
+def test_an_unprivileged_process_keeps_normal_scheduling_and_says_why():
+    message, policies = _run("drop")  # imports done as root, then nobody (no CAP_SYS_NICE, RLIMIT_RTPRIO 0)
+    assert "SCHED_FIFO not permitted" in message and "ulimit -r 7" in message
+    assert policies == f"[{os.SCHED_OTHER}] {os.SCHED_OTHER} 0"
