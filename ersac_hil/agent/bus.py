@@ -41,7 +41,7 @@ from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device, object_dictionary
-from protocol.can.busconfig import BusConfig, open_network
+from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import Scale
 from protocol.can.pdo import pdo_maps, pdo_struct
 
@@ -320,12 +320,13 @@ class AgentBus:
             cycle = self.cycles
             self._pending.update(self._tpdo_device)
             self._frames.clear()
+        commands = self._last_commands
+        frames = [(cob_id, layout.pack(*[raw[k] for k in keys]))
+                  for name, cob_id, layout, keys in self._rpdos for raw in (commands.raw(name),)]
+        frames.append((cobid.SYNC, b""))
         try:
-            for name, cob_id, layout, keys in self._rpdos:
-                raw = self._last_commands.raw(name)
-                net.send_message(cob_id, layout.pack(*[raw[k] for k in keys]))
             t0 = time.perf_counter()
-            net.send_message(cobid.SYNC, b"")
+            send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
         deadline = t0 + self.timing.deadline_s

@@ -22,9 +22,14 @@ machine. ``protocol.can.busconfig.open_network`` uses it for canopen networks; l
 one frame at a time, in arrival order, and a listener's exception is kept (``exception``)
 like ``can.Notifier`` does.
 
-Wire format of one sample (little-endian): ``u32 arbitration_id``, ``u8 flags`` (bit 0
-extended id, 1 remote, 2 error frame, 3 CAN FD, 4 bit-rate switch, 5 error-state
-indicator), ``u8 dlc``, then the data bytes.
+Bursts: :meth:`ZenohBus.send_many` puts several frames in one sample (a simulator's TPDOs
+after a SYNC, a master's RPDOs and the SYNC): one Zenoh message and one receive callback
+instead of one per frame; receivers see the frames one by one, in order, as if sent singly.
+
+Wire format of one sample: one or more frames back to back, each (little-endian)
+``u32 arbitration_id``, ``u8 flags`` (bit 0 extended id, 1 remote, 2 error frame, 3 CAN FD,
+4 bit-rate switch, 5 error-state indicator), ``u8 dlc``, ``u8 length``, then ``length`` data
+bytes.
 """
 from __future__ import annotations
 
@@ -42,36 +47,56 @@ from ersac_hil.zenoh_session import ZenohConfigError, make_config, open_session
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "decode_frame", "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "decode_frame", "decode_frames",
+           "parse_channel"]
 
 DEFAULT_PREFIX = "can"
-_HEADER = struct.Struct("<IBB")
+_HEADER = struct.Struct("<IBBB")
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
 
 
 def encode_frame(msg: can.Message) -> bytes:
-    """The sample payload of ``msg`` (see the module doc)."""
+    """The wire form of ``msg`` (see the module doc); a sample carries one or more."""
     flags = ((_EXTENDED if msg.is_extended_id else 0) | (_REMOTE if msg.is_remote_frame else 0)
              | (_ERROR if msg.is_error_frame else 0) | (_FD if msg.is_fd else 0)
              | (_BRS if msg.bitrate_switch else 0) | (_ESI if msg.error_state_indicator else 0))
-    return _HEADER.pack(msg.arbitration_id, flags, msg.dlc) + bytes(msg.data)
+    data = bytes(msg.data)
+    return _HEADER.pack(msg.arbitration_id, flags, msg.dlc, len(data)) + data
+
+
+def decode_frames(payload: bytes, channel: str | None = None) -> list[can.Message]:
+    """Every frame of a sample, as received ``can.Message`` objects timestamped now.
+
+    Raises:
+        ValueError: a payload that does not split into whole frames.
+    """
+    out, at, end, now = [], 0, len(payload), time.time()
+    while at < end:
+        if end - at < _HEADER.size:
+            raise ValueError(f"CAN-over-Zenoh sample: {end - at} bytes left, shorter than a frame header")
+        arbitration_id, flags, dlc, length = _HEADER.unpack_from(payload, at)
+        at += _HEADER.size
+        if end - at < length:
+            raise ValueError(f"CAN-over-Zenoh sample: frame 0x{arbitration_id:X} needs {length} data bytes, "
+                             f"{end - at} left")
+        out.append(can.Message(timestamp=now, arbitration_id=arbitration_id,
+                               is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
+                               is_error_frame=bool(flags & _ERROR), is_fd=bool(flags & _FD),
+                               bitrate_switch=bool(flags & _BRS), error_state_indicator=bool(flags & _ESI),
+                               dlc=dlc, data=payload[at:at + length], channel=channel, is_rx=True,
+                               check=False))
+        at += length
+    if not out:
+        raise ValueError("CAN-over-Zenoh sample without a frame")
+    return out
 
 
 def decode_frame(payload: bytes, channel: str | None = None) -> can.Message:
-    """A received ``can.Message`` (timestamped now) from a sample payload.
-
-    Raises:
-        ValueError: a payload too short for its header.
-    """
-    if len(payload) < _HEADER.size:
-        raise ValueError(f"CAN-over-Zenoh sample of {len(payload)} bytes: shorter than its header")
-    arbitration_id, flags, dlc = _HEADER.unpack_from(payload)
-    return can.Message(timestamp=time.time(), arbitration_id=arbitration_id,
-                       is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
-                       is_error_frame=bool(flags & _ERROR), is_fd=bool(flags & _FD),
-                       bitrate_switch=bool(flags & _BRS), error_state_indicator=bool(flags & _ESI),
-                       dlc=dlc, data=payload[_HEADER.size:], channel=channel, is_rx=True,
-                       check=False)
+    """The single frame of a sample (see :func:`decode_frames`)."""
+    frames = decode_frames(payload, channel)
+    if len(frames) != 1:
+        raise ValueError(f"CAN-over-Zenoh sample with {len(frames)} frames, expected one")
+    return frames[0]
 
 
 def parse_channel(channel: Any, connect: str | Sequence[str] | None = None) -> tuple[str, tuple[str, ...]]:
@@ -144,14 +169,15 @@ class ZenohBus(BusABC):
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
-            msg = decode_frame(sample.payload.to_bytes(), self._name)
+            frames = decode_frames(sample.payload.to_bytes(), self._name)
         except ValueError:
-            return  # not a frame: nothing a CAN node could receive
+            return  # not frames: nothing a CAN node could receive
         push = self._push
-        if push is None:
-            self._rx.put(msg)
-        elif self._matches_filters(msg):
-            push.deliver(msg)
+        for msg in frames:
+            if push is None:
+                self._rx.put(msg)
+            elif self._matches_filters(msg):
+                push.deliver(msg)
 
     def push_notifier(self, listeners: list) -> PushNotifier:  # noqa: ANN001
         """Deliver every received frame to ``listeners`` (``can.Listener`` or callables) on
@@ -169,10 +195,18 @@ class ZenohBus(BusABC):
             return None, False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._put(encode_frame(msg))
+
+    def send_many(self, msgs: Sequence[can.Message]) -> None:
+        """Send ``msgs`` in this order as one burst (one Zenoh sample, see the module doc)."""
+        if msgs:
+            self._put(b"".join([encode_frame(m) for m in msgs]))
+
+    def _put(self, payload: bytes) -> None:
         if self._closed:
             raise can.CanOperationError(f"{self.channel_info}: bus is shut down")
         try:
-            self._publisher.put(encode_frame(msg))
+            self._publisher.put(payload)
         except zenoh.ZError as exc:
             raise can.CanOperationError(f"{self.channel_info}: {exc}") from exc
 

@@ -257,12 +257,14 @@ class SlaveNode(canopen.LocalNode):
         if changed:
             self.app.on_commands(changed)
 
-    def transmit_tpdos(self) -> None:
-        """Sample the application and send every synchronous TPDO (operational only)."""
+    def transmit_tpdos(self, out: list[tuple[int, bytes]] | None = None) -> None:
+        """Sample the application and send every synchronous TPDO (operational only); with
+        ``out``, append ``(COB-ID, data)`` to it instead (the caller sends them as a burst)."""
         if not self.operational:
             return
         self.sync_count += 1
-        count, send = self.sync_count, self.network.send_message
+        count = self.sync_count
+        send = self.network.send_message if out is None else (lambda cob_id, data: out.append((cob_id, data)))
         with self._lock:
             self.app.sample()
             values = self._values

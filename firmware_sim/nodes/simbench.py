@@ -18,7 +18,7 @@ from firmware_sim.nodes.devices import APPS
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
 from protocol.can.bench import BENCH, Device
-from protocol.can.busconfig import BusConfig, open_network
+from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import EmcyCode, Index
 
 log = logging.getLogger(__name__)
@@ -91,8 +91,10 @@ class SimulatedBench:
                 node.apply_commands()
             if not self.realtime:
                 self._step()
+            frames: list[tuple[int, bytes]] = []
             for node in self.nodes.values():
-                node.transmit_tpdos()
+                node.transmit_tpdos(frames)
+            send_frames(self.network, frames)
 
     def _run_realtime(self) -> None:
         period = self.sim.control_period

@@ -132,3 +132,20 @@ def open_network(config: BusConfig) -> canopen.Network:
         return network.connect()
     network.notifier = push(network.listeners)
     return network
+
+
+def send_frames(network: canopen.Network, frames: list[tuple[int, bytes]]) -> None:
+    """Send standard-id data frames ``(COB-ID, data)`` in this order: as one burst where the
+    bus has ``send_many`` (CAN over Zenoh: one message for a SYNC's worth of PDOs), else one
+    by one (``Network.send_message``)."""
+    bus = network.bus
+    many = getattr(bus, "send_many", None)
+    if many is None:
+        for cob_id, data in frames:
+            network.send_message(cob_id, data)
+        return
+    msgs = [can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, check=False)
+            for cob_id, data in frames]
+    with network.send_lock:
+        many(msgs)
+    network.check()

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, encode_frame
+from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, decode_frames, encode_frame
 
 TIMEOUT = 10.0
 
@@ -64,9 +64,26 @@ def test_the_wire_format_round_trips_every_field(msg):
     assert back.is_rx and back.channel == "c"
 
 
-def test_a_short_payload_is_not_a_frame():
-    with pytest.raises(ValueError, match="shorter than its header"):
-        decode_frame(b"\x01\x02")
+@given(st.lists(frames, min_size=1, max_size=20))
+def test_a_burst_splits_back_into_its_frames(msgs):
+    back = decode_frames(b"".join(encode_frame(m) for m in msgs))
+    assert len(back) == len(msgs)
+    assert all(b.equals(m, timestamp_delta=None, check_channel=False, check_direction=False)
+               for b, m in zip(back, msgs))
+
+
+def test_remote_frames_keep_their_dlc_without_data():
+    msg = can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1)
+    back = decode_frame(encode_frame(msg))
+    assert back.is_remote_frame and back.dlc == 1 and len(back.data) == 0
+
+
+@pytest.mark.parametrize("payload, match", [
+    (b"", "without a frame"), (b"\x01\x02", "shorter than a frame header"),
+    (encode_frame(can.Message(arbitration_id=1, data=b"abcd")) [:-1], "needs 4 data bytes")])
+def test_payloads_that_are_not_whole_frames_are_refused(payload, match):
+    with pytest.raises(ValueError, match=match):
+        decode_frames(payload)
 
 
 def test_the_entry_point_opens_it_and_frames_arrive_in_order(pair):
@@ -78,6 +95,16 @@ def test_the_entry_point_opens_it_and_frames_arrive_in_order(pair):
     got = [b.recv(TIMEOUT) for _ in sent]
     assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data)) for m in sent]
     assert a.recv(0.1) is None  # a bus does not hear itself by default
+
+
+def test_a_burst_arrives_as_single_frames_in_order(pair):
+    a, b = pair
+    sent = [can.Message(arbitration_id=0x190 + i, data=bytes([i] * (i % 9))) for i in range(13)]
+    a.send_many(sent)
+    a.send(can.Message(arbitration_id=0x80, data=b""))
+    got = [b.recv(TIMEOUT) for _ in range(14)]
+    assert [(m.arbitration_id, bytes(m.data)) for m in got[:13]] == [(m.arbitration_id, bytes(m.data)) for m in sent]
+    assert got[13].arbitration_id == 0x80
 
 
 def test_own_frames_on_request_and_other_channels_stay_apart(can_router):
