@@ -34,4 +34,4 @@ def request_realtime(priority: int = SYNC_PRIORITY) -> str:
                 f"{priority}, e.g. 'ulimit -r {priority}'): normal scheduling, expect late cycles under load")
     except OSError as exc:
         return f"SCHED_FIFO refused ({exc}): normal scheduling"
-    return f"SCHED_FIFO priority {priority} on {len(tids)} threads"
+    return f"SCHED_FIFO priority {priority} on {len(tids)} thread(s); threads started later inherit it"
