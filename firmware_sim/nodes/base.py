@@ -259,8 +259,9 @@ class SlaveNode(canopen.LocalNode):
 
     def transmit_tpdos(self, out: list[tuple[int, bytes]] | None = None) -> None:
         """Sample the application and send every synchronous TPDO (operational only); with
-        ``out``, append ``(COB-ID, data)`` to it instead (the caller sends them as a burst)."""
-        if not self.operational:
+        ``out``, append ``(COB-ID, data)`` to it instead (the caller sends them as a burst).
+        A node taken off the bus (``close``) sends nothing."""
+        if not self.operational or not self.has_network():
             return
         self.sync_count += 1
         count = self.sync_count
