@@ -34,6 +34,8 @@ from firmware_sim.plant.physics import UBOT_XML
 from firmware_sim.scenarios.bracing import PENDULUM_XML
 from firmware_sim.scenarios.lifting import BOTTLE_XML
 assert all(p.is_file() for p in (UBOT_XML, PENDULUM_XML, BOTTLE_XML))  # MJCF files shipped
+from ersac_hil.dashboard.server import PAGE_FILES, PLOTLY_JS, STATIC
+assert PLOTLY_JS.is_file() and all((STATIC / n).is_file() for n in PAGE_FILES)  # dashboard page shipped
 print("wheel-smoke: package data present")
 PY
 "$work/venv/bin/ersac-hil" bus-load --check

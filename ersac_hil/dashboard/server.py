@@ -46,12 +46,14 @@ from . import api
 from .bridge import Bridge
 from .model import Event
 
-__all__ = ["EventHub", "build_app", "WebServer", "is_loopback", "PLOTLY_JS"]
+__all__ = ["EventHub", "build_app", "WebServer", "is_loopback", "PLOTLY_JS", "STATIC", "PAGE_FILES"]
 
 log = logging.getLogger(__name__)
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
-_STATIC = resources.files("ersac_hil.dashboard") / "static"
+#: The page's own files (package data: index.html, app.js, style.css).
+STATIC = resources.files("ersac_hil.dashboard") / "static"
+PAGE_FILES = ("index.html", "app.js", "style.css")
 _KEEPALIVE_S = 15.0
 _QUEUE_EVENTS = 10_000
 
@@ -133,7 +135,7 @@ class EventHub:
 
 
 def _page(read_only: bool) -> str:
-    html = (_STATIC / "index.html").read_text(encoding="utf-8")
+    html = (STATIC / "index.html").read_text(encoding="utf-8")
     if read_only:
         start, end = html.index("<!-- controls -->"), html.index("<!-- /controls -->")
         html = html[:start] + html[end:]
@@ -151,10 +153,10 @@ def build_app(bridge: Bridge, hub: EventHub, *, read_only: bool, loopback: bool)
         name = request.path_params["name"]
         if name == "plotly.min.js":
             return FileResponse(PLOTLY_JS, media_type="text/javascript")
-        if name not in ("app.js", "style.css"):
+        if name not in PAGE_FILES[1:]:
             return JSONResponse({"error": {"code": "not_found", "reason": name}}, 404)
         media = "text/javascript" if name.endswith(".js") else "text/css"
-        return Response((_STATIC / name).read_bytes(), media_type=media,
+        return Response((STATIC / name).read_bytes(), media_type=media,
                         headers={"Cache-Control": "no-cache"})
 
     def refused(exc: Exception) -> JSONResponse:
