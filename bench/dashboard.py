@@ -10,7 +10,8 @@ animation frame). Prints p50 / p99 / max of:
   learner's update) to the frame showing the point;
 * learner publication -> point drawn: from ``LearnerEpisode.stamp_s`` (after the learner's update
   and commit) to that frame: the dashboard's own share;
-* learner publication -> event in the page: the same without drawing.
+* learner publication -> event in the page: the same without drawing;
+* learner publication -> a plain Zenoh subscriber in this process: the floor (baseline, same run).
 
 All clocks are this machine's wall clock. Writes a histogram PNG (``--plot``).
 
@@ -24,6 +25,7 @@ import signal
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -33,7 +35,7 @@ import numpy as np  # noqa: E402
 from ersac_hil.dashboard.browser import headless_chromium, missing  # noqa: E402
 from ersac_hil.demo import Child  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
-from protocol.zenoh import EpisodeDone, KeySpace  # noqa: E402
+from protocol.zenoh import EpisodeDone, KeySpace, LearnerEpisode  # noqa: E402
 
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl",
        "PYTHONUNBUFFERED": "1"}
@@ -62,7 +64,14 @@ def main(argv: list[str] | None = None) -> int:
                               "--dashboard-port", "0", "--linger"], tmp_path, ENV)
         driver = session = None
         done_stamps: dict[str, float] = {}
+        floor_ms: list[float] = []
         lock = threading.Lock()
+
+        def on_episode(sample) -> None:  # noqa: ANN001
+            now = time.time()
+            episode = LearnerEpisode.from_json(sample.payload)
+            with lock:
+                floor_ms.append(1000 * (now - episode.stamp_s))
 
         def on_done(sample) -> None:  # noqa: ANN001
             done = EpisodeDone.from_json(sample.payload)
@@ -72,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             endpoint = demo.wait_for(r"^demo: router (tcp/\S+),", 120).group(1)
             session = open_session(make_config("client", connect=[endpoint]))
-            session.declare_subscriber(KeySpace("ubot1").episode_done, on_done)
+            keys = KeySpace("ubot1")
+            session.declare_subscriber(keys.episode_done, on_done)
+            session.declare_subscriber(keys.learner_episodes, on_episode)
             url = demo.wait_for(r"^demo: dashboard (http://\S+)", 60).group(1)
             driver = headless_chromium(tmp_path / "chromium")
             driver.get(url)
@@ -96,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     print(_row("agent result -> point drawn", agent))
     print(_row("learner publication -> point drawn", learner))
     print(_row("learner publication -> event in page", received))
+    print(_row("learner publication -> Zenoh subscriber", floor_ms))
     if args.plot:
         import matplotlib
         matplotlib.use("Agg")
