@@ -92,9 +92,10 @@ function renderCritic() {
       annotations: [{ text: D.criticNote || "no critic yet", showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.5 }] }, PLOT_CONFIG);
   }
   const n = c.slices.length, cols = Math.min(n, 4), rows = Math.ceil(n / cols);
+  const height = Math.max(360, rows * 300);
   const traces = [], layout = {
-    margin: { l: 60, r: 20, t: 40, b: 50 }, showlegend: true, legend: LEGEND,
-    grid: { rows, columns: cols, pattern: "independent" }, shapes: [], uirevision: "critic",
+    margin: { l: 60, r: 20, t: 40, b: 50 }, showlegend: true, legend: LEGEND, height,
+    grid: { rows, columns: cols, pattern: "independent", ygap: 0.45, xgap: 0.12 }, shapes: [], uirevision: "critic",
   };
   c.slices.forEach((s, i) => {
     const k = i === 0 ? "" : String(i + 1), first = i === 0;
@@ -110,7 +111,7 @@ function renderCritic() {
     layout["yaxis" + k] = { title: { text: i % cols === 0 ? "cost" : "" } };
     layout.shapes.push({ type: "line", xref: "x" + k, yref: `y${k} domain`, x0: s.at, x1: s.at, y0: 0, y1: 1, line: { color: RED, width: 1.5, dash: "dot" } });
   });
-  $("critic").style.height = `${Math.max(360, rows * 280)}px`;
+  $("critic").style.height = `${height}px`;
   return Plotly.react($("critic"), traces, layout, PLOT_CONFIG);
 }
 
