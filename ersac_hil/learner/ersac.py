@@ -16,6 +16,11 @@ r~ is the critic's predictive noise std sqrt(exp(g_mean + g_var / 2)) (critic/lo
 Until `min_observations` observations exist (default: the critic's min_neighbours), tell()
 only stores the observation (a warm-up Update with step 0).
 
+Batched variant (a fleet of robots evaluating k perturbations in parallel): ask_batch(k)
+draws k perturbations around the same theta; tell_batch(executed, costs) records the k
+observations in row order and makes one update from the average of their eq. 10 terms,
+theta <- clip(theta - alpha mean_i(delta_i z_i), bounds).  k = 1 is exactly ask()/tell().
+
 Pending ask: ask() draws z once; until tell() it returns the same executed parameters (no
 new draw).  get_state() includes the pending parameters, so a resumed learner re-issues
 exactly the same ask.  tell() must be given those parameters (within 1e-9 of the bounds'
@@ -70,7 +75,8 @@ STATE_VERSION = 1
 
 @dataclass(frozen=True, eq=False)
 class Update:
-    """Result of one tell().  Arrays have shape (d,).
+    """Result of one tell().  Arrays have shape (d,); executed and z (k, d) after a
+    tell_batch(), whose cost, r_tilde_perturbed and td_error are the means over the k rows.
 
     J_tilde, r_tilde, r_tilde_perturbed, td_error are None for warm-up tells and skipped
     updates (no update).  step_size is alpha = clip(eta / r~(theta), lr_range) (0 in warm-up).
@@ -311,13 +317,15 @@ class ERSAC:
     # ------------------------------------------------------------------ ask / tell
     def ask(self) -> np.ndarray:
         """Parameters to execute next: clip(theta + z, bounds), (d,).  Idempotent until tell()."""
+        if self._pending is not None and self._pending.ndim == 2:
+            raise PendingAskError("a batch from ask_batch() awaits its tell_batch()")
         if self._pending is None:
             z = self._rng.standard_normal(self._d) * self._sigma
             self._pending = np.clip(self._theta + z, self._lo, self._hi)
         return self._pending.copy()
 
     def _check_executed(self, executed: object) -> np.ndarray:
-        if self._pending is None:
+        if self._pending is None or self._pending.ndim != 1:
             raise NoPendingAskError("tell() without a pending ask()")
         x = self._check_params(executed, "executed")
         tol = 1e-9 * (self._hi - self._lo)
@@ -347,23 +355,31 @@ class ERSAC:
 
         cost: a number (single-term weights) or a mapping term name -> value."""
         x = self._check_executed(executed)
-        self._store.prepare(x, cost)  # validates the cost before any change
+        return self._tell(x[None, :], [cost], batched=False)
+
+    def _tell(self, X: np.ndarray, costs: list[Mapping[str, float] | float], batched: bool) -> Update:
+        """Record the k rows of X (k, d) with their costs, then one update (see module doc)."""
+        for x, cost in zip(X, costs):
+            self._store.prepare(x, cost)  # validates every cost before any change
         self._check_resume()
         theta = self._theta.copy()
-        z = x - theta
-        index = self._store.add(x, cost)
-        J_hat = float(self._store.costs[index])
+        Z = X - theta
+        first = len(self._store)
+        for x, cost in zip(X, costs):
+            self._store.add(x, cost)
+        J_hat = np.array(self._store.costs[first:], dtype=float)
+        row = (lambda a: a.mean(axis=0)) if batched else (lambda a: a[0])  # noqa: E731
         try:
             if len(self._store) < self._min_obs:
                 upd = Update(
-                    self._n_updates, theta, theta.copy(), x, z, J_hat, None, None, None, None,
-                    self._kappa, 0.0, True, False, 0,
+                    self._n_updates, theta, theta.copy(), X if batched else X[0], Z if batched else Z[0],
+                    float(row(J_hat)), None, None, None, None, self._kappa, 0.0, True, False, 0,
                 )
                 new_theta, fit = theta, self._last_fit
             else:
-                upd, new_theta, fit = self._update(theta, x, z, J_hat)
+                upd, new_theta, fit = self._update(theta, X, Z, J_hat, batched)
         except BaseException:
-            self._store.truncate(index)
+            self._store.truncate(first)
             raise
         self._theta = new_theta
         self._last_fit = fit
@@ -372,6 +388,53 @@ class ERSAC:
         self._pending = None
         self._n_updates += 1
         return upd
+
+    # ------------------------------------------------------------------ batched ask / tell
+    def ask_batch(self, k: int) -> np.ndarray:
+        """k perturbations around the same theta for one batched update, (k, d): row i is
+        clip(theta + z_i, bounds).  The rows are drawn in order from the same random stream
+        as ask(), so ask_batch(1)[0] == ask().  Idempotent until tell_batch()."""
+        if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+            raise InvalidInputError(f"k must be an integer >= 1, got {k!r}")
+        if self._pending is not None and self._pending.shape != (k, self._d):
+            raise PendingAskError(f"a pending ask of shape {self._pending.shape} awaits its tell")
+        if self._pending is None:
+            Z = self._rng.standard_normal((int(k), self._d)) * self._sigma
+            self._pending = np.clip(self._theta + Z, self._lo, self._hi)
+        return self._pending.copy()
+
+    def reask(self, i: int) -> np.ndarray:
+        """A new draw for row i of the pending batch (its parameters could not be executed);
+        the other rows stay.  Returns the new row, (d,)."""
+        if self._pending is None or self._pending.ndim != 2:
+            raise NoPendingAskError("reask() without a pending ask_batch()")
+        if isinstance(i, bool) or not isinstance(i, numbers.Integral) or not 0 <= i < len(self._pending):
+            raise InvalidInputError(f"row {i!r} not in the pending batch of {len(self._pending)}")
+        z = self._rng.standard_normal(self._d) * self._sigma
+        self._pending[i] = np.clip(self._theta + z, self._lo, self._hi)
+        return self._pending[i].copy()
+
+    def tell_batch(self, executed: object, costs: list[Mapping[str, float] | float]) -> Update:
+        """Report the costs of the pending batch (executed (k, d), k costs in row order) and
+        make one update from the average of the rows' eq. 10 terms:
+        theta <- clip(theta - alpha mean_i(delta_i z_i), bounds), with
+        delta_i = J^_i - J~(theta) + kappa (r~(theta + z_i) - r~(theta)) and alpha from
+        r~(theta) as in tell().  The k observations are recorded in row order.  The Update's
+        executed and z have shape (k, d); cost, r_tilde_perturbed and td_error are the rows'
+        means.  k = 1 gives the same theta, critic values and state as ask()/tell()."""
+        if self._pending is None or self._pending.ndim != 2:
+            raise NoPendingAskError("tell_batch() without a pending ask_batch()")
+        X = np.asarray(executed, dtype=float)
+        if X.shape != self._pending.shape:
+            raise InvalidInputError(f"executed must have shape {self._pending.shape}, got {X.shape}")
+        if not isinstance(costs, (list, tuple)) or len(costs) != len(X):
+            raise InvalidInputError(f"costs must be a list of {len(X)} costs")
+        for i, x in enumerate(X):
+            self._check_params(x, f"executed[{i}]")
+        tol = 1e-9 * (self._hi - self._lo)
+        if np.any(np.abs(X - self._pending) > tol):
+            raise PendingMismatchError(f"executed {X.tolist()} differs from the pending batch {self._pending.tolist()}")
+        return self._tell(self._pending.copy(), list(costs), batched=True)
 
     def _update_fit(self, theta: np.ndarray) -> LocalFit:
         ids = self._critic.neighbourhood(theta)
@@ -382,26 +445,30 @@ class ERSAC:
         also_cold = every > 0 and self._n_updates % every == 0
         return self._critic.fit_ids(ids, warm_start=last, use_cache=False, also_cold=also_cold)
 
-    def _update(self, theta: np.ndarray, x: np.ndarray, z: np.ndarray, J_hat: float) -> tuple[Update, np.ndarray, LocalFit | None]:
+    def _update(self, theta: np.ndarray, X: np.ndarray, Z: np.ndarray, J_hat: np.ndarray,
+                batched: bool) -> tuple[Update, np.ndarray, LocalFit | None]:
+        """One update from the k rows X, Z (k, d) and costs J_hat (k,)."""
         kappa = self._kappa
+        row = (lambda a: a.mean(axis=0)) if batched else (lambda a: a[0])  # noqa: E731
+        executed, z = (X, Z) if batched else (X[0], Z[0])
         with single_threaded_blas():
             try:
                 fit = self._update_fit(theta)
                 J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
-                _, r_p, _ = (float(v[0]) for v in fit.estimate_many(x[None, :]))
-                if not all(math.isfinite(v) for v in (J_t, r_t, r_p)) or r_t <= 0:
-                    raise FitError(f"non-finite critic values J~ {J_t}, r~ {r_t}, r~(theta+z) {r_p}")
+                r_p = np.asarray(fit.estimate_many(X)[1], dtype=float)
+                if not (math.isfinite(J_t) and math.isfinite(r_t) and np.all(np.isfinite(r_p))) or r_t <= 0:
+                    raise FitError(f"non-finite critic values J~ {J_t}, r~ {r_t}, r~(theta+z) {r_p.tolist()}")
             except CriticError as exc:
-                # the observation is kept; theta and the fit chain stay as they were
+                # the observations are kept; theta and the fit chain stay as they were
                 reason = f"critic fit failed: {exc}"
                 upd = Update(
-                    self._n_updates, theta, theta.copy(), x, z, J_hat, None, None, None, None,
-                    kappa, 0.0, False, False, 0, skipped=reason,
+                    self._n_updates, theta, theta.copy(), executed, z, float(row(J_hat)), None, None, None,
+                    None, kappa, 0.0, False, False, 0, skipped=reason,
                 )
                 return upd, theta, self._last_fit
-        delta = J_hat - J_t + kappa * (r_p - r_t)
+        deltas = J_hat - J_t + kappa * (r_p - r_t)
         alpha = float(np.clip(self._eta / r_t, self._lr[0], self._lr[1]))
-        step = -alpha * delta * z
+        step = row(-alpha * deltas[:, None] * Z)  # k = 1: exactly -alpha * delta * z
         scale = 1.0
         if self._max_step is not None:
             largest = float(np.max(np.abs(step) / self._sigma))
@@ -427,8 +494,9 @@ class ERSAC:
                 if there.F + 2.0 * math.sqrt(max(there.J_var, 0.0)) < here.F:
                     new_theta, offline = sel.theta.copy(), True
         upd = Update(
-            self._n_updates, theta, new_theta.copy(), x, z, J_hat, J_t, r_t, r_p, delta,
-            kappa, alpha, False, clipped, int(fit.ids.size), step_scale=scale, offline=offline,
+            self._n_updates, theta, new_theta.copy(), executed, z, float(row(J_hat)), J_t, r_t,
+            float(row(r_p)), float(row(deltas)), kappa, alpha, False, clipped, int(fit.ids.size),
+            step_scale=scale, offline=offline,
         )
         return upd, new_theta, fit
 
@@ -506,7 +574,7 @@ class ERSAC:
             "critic": self._critic.config.to_dict(),
             "weights": self._store.weights.to_dict(),
             "rng": _rng_state_to_json(self._rng),
-            "pending": None if self._pending is None else [float(v) for v in self._pending],
+            "pending": None if self._pending is None else self._pending.tolist(),
             "n_updates": self._n_updates,
             "n_observations": max(len(self._store), self._expect_obs),
             "observations_sha256": self._digest(len(self._store)) if len(self._store) >= self._expect_obs else self._expect_digest,
@@ -537,7 +605,9 @@ class ERSAC:
             )
             learner._rng = _rng_from_json(state["rng"])
             if state["pending"] is not None:
-                learner._pending = learner._check_params(state["pending"], "pending")
+                pending = np.asarray(state["pending"], dtype=float)
+                learner._pending = (np.array([learner._check_params(x, "pending") for x in pending])
+                                    if pending.ndim == 2 else learner._check_params(pending, "pending"))
             learner._n_updates = int(state["n_updates"])
             learner._expect_obs = int(state["n_observations"])
             learner._expect_digest = state["observations_sha256"]
