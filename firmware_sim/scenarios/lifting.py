@@ -44,7 +44,7 @@ class Lifting(Scenario):
     grasp_force_limit = 25.0
     """N per hand, nominal grip limit (about 5x the static share of the bottle's weight; a
     smooth 3 s lift peaks near 10 N)."""
-    grip_spread = 0.15
+    grip_spread = 0.08
     """Relative standard deviation of the grip limit between episodes."""
 
     def build_spec(self) -> mujoco.MjSpec:
