@@ -66,3 +66,10 @@ def input_spans(X: np.ndarray) -> np.ndarray:
     span = X.max(0) - X.min(0)
     floor = 1e-6 * np.maximum(1.0, np.abs(X).max(0))
     return np.maximum(span, floor)
+
+
+def read_only(a: np.ndarray) -> np.ndarray:
+    """A view of ``a`` that cannot be written through."""
+    v = a.view()
+    v.flags.writeable = False
+    return v

@@ -41,7 +41,7 @@ from scipy.optimize import minimize
 
 from . import _linalg as la
 from ._blas import single_threaded_blas
-from ._data import Standardisation, check_xs, check_xy, input_spans
+from ._data import Standardisation, check_xs, check_xy, input_spans, read_only
 from .bound import BAD, unpack, vhgp_bound
 from .errors import CriticInputError, FitError, NotFittedError
 from .gp import GP
@@ -375,17 +375,13 @@ class VHGP:
     def X(self) -> np.ndarray:
         """Training inputs (n, d) (a read-only view)."""
         self._check()
-        v = self._X.view()
-        v.flags.writeable = False
-        return v
+        return read_only(self._X)
 
     @property
     def y(self) -> np.ndarray:
         """Training outputs (n,) in the units of the data (a read-only view)."""
         self._check()
-        v = self._y.view()
-        v.flags.writeable = False
-        return v
+        return read_only(self._y)
 
     def loo(self, noise_floor: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
         """Leave-one-out residuals of the posterior mean and their variance without the noise,

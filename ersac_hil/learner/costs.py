@@ -20,7 +20,8 @@ from .errors import InvalidCostError, InvalidInputError, MissingTermError, Unkno
 DEFAULT_TERM = "cost"
 
 
-def _finite_real(value: object, what: str, exc: type[Exception] = InvalidCostError) -> float:
+def finite_real(value: object, what: str, exc: type[Exception] = InvalidInputError) -> float:
+    """``value`` as a finite float, else ``exc`` naming ``what`` (bools are not numbers here)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise exc(f"{what} must be a real number, got {value!r}")
     v = float(value)
@@ -41,7 +42,7 @@ class CostWeights(Mapping[str, float]):
         for name, w in weights.items():
             if not isinstance(name, str) or not name:
                 raise InvalidInputError(f"cost term names must be non-empty strings, got {name!r}")
-            items.append((name, _finite_real(w, f"weight of {name!r}", InvalidInputError)))
+            items.append((name, finite_real(w, f"weight of {name!r}")))
         self._items: tuple[tuple[str, float], ...] = tuple(sorted(items))
 
     # Mapping protocol
@@ -97,9 +98,9 @@ class CostWeights(Mapping[str, float]):
         if not isinstance(terms, Mapping):
             if len(self._items) != 1:
                 raise MissingTermError(f"a bare cost needs exactly one weighted term; terms are {list(self.names)}")
-            return np.array([_finite_real(terms, "cost")])
+            return np.array([finite_real(terms, "cost", InvalidCostError)])
         self.check_names(terms.keys())
-        return np.array([_finite_real(terms[k], f"cost term {k!r}") for k in self.names])
+        return np.array([finite_real(terms[k], f"cost term {k!r}", InvalidCostError) for k in self.names])
 
     def combine_rows(self, T: np.ndarray) -> np.ndarray:
         """sum_k w_k T[:, k], accumulated in name order.  T (N, K) -> (N,)."""

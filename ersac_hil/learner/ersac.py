@@ -50,7 +50,7 @@ import numpy as np
 
 from ..critic import CriticConfig, CriticError, CriticEstimate, FitError, LocalCritic, LocalFit
 from ..critic._blas import single_threaded_blas
-from .costs import CostWeights, ObservationStore
+from .costs import CostWeights, ObservationStore, finite_real
 from .errors import (
     InsufficientDataError,
     InvalidInputError,
@@ -110,15 +110,6 @@ class Update:
             v = getattr(self, f.name)
             out[f.name] = [float(x) for x in v] if isinstance(v, np.ndarray) else v
         return out
-
-
-def _real(value: object, what: str, exc: type[LearnerError] = InvalidInputError) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise exc(f"{what} must be a real number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise exc(f"{what} must be finite, got {v}")
-    return v
 
 
 def _rng_state_to_json(rng: np.random.Generator) -> dict[str, Any]:
@@ -183,13 +174,13 @@ class ERSAC:
             s = np.full(d, float(s))
         if s.shape != (d,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
             raise InvalidInputError(f"sigma must be a positive scalar or shape ({d},)")
-        self._eta = _real(eta, "eta")
+        self._eta = finite_real(eta, "eta")
         if self._eta <= 0:
             raise InvalidInputError("eta must be > 0")
-        lr = (_real(lr_range[0], "lr_range[0]"), _real(lr_range[1], "lr_range[1]"))
+        lr = (finite_real(lr_range[0], "lr_range[0]"), finite_real(lr_range[1], "lr_range[1]"))
         if not (0 < lr[0] <= lr[1]):
             raise InvalidInputError("lr_range must satisfy 0 < lo <= hi")
-        eps = _real(epsilon, "epsilon")
+        eps = finite_real(epsilon, "epsilon")
         try:
             cfg = CriticConfig(epsilon=eps) if critic is None else dataclasses.replace(critic, epsilon=eps)
         except CriticError as exc:
@@ -201,7 +192,7 @@ class ERSAC:
             raise InvalidInputError("min_observations must be an integer >= 3")
         if seed is not None and (not isinstance(seed, numbers.Integral) or seed < 0):
             raise InvalidInputError("seed must be a non-negative integer or None")
-        if max_step is not None and (_real(max_step, "max_step") <= 0):
+        if max_step is not None and (finite_real(max_step, "max_step") <= 0):
             raise InvalidInputError("max_step must be > 0 (in units of sigma) or None")
         if isinstance(interleave_every, bool) or not isinstance(interleave_every, numbers.Integral) or interleave_every < 0:
             raise InvalidInputError("interleave_every must be an integer >= 0 (0: off)")
@@ -209,7 +200,7 @@ class ERSAC:
         self._d = d
         self._theta = theta
         self._sigma = s
-        self._kappa = _real(kappa, "kappa", InvalidKappaError)
+        self._kappa = finite_real(kappa, "kappa", InvalidKappaError)
         self._lr = lr
         self._min_obs = int(m)
         self._max_step = None if max_step is None else float(max_step)
@@ -268,7 +259,7 @@ class ERSAC:
     @kappa.setter
     def kappa(self, value: float) -> None:
         """Risk sensitivity; takes effect at the next tell()."""
-        self._kappa = _real(value, "kappa", InvalidKappaError)
+        self._kappa = finite_real(value, "kappa", InvalidKappaError)
 
     @property
     def dim(self) -> int:
@@ -518,7 +509,7 @@ class ERSAC:
     def critic_estimate(self, theta: object, kappa: float | None = None) -> CriticEstimate:
         """J~, r~, F~ and gradients at theta (d,) from its neighbourhood's VHGP."""
         th = self._check_params(theta, "theta")
-        k = self._kappa if kappa is None else _real(kappa, "kappa", InvalidKappaError)
+        k = self._kappa if kappa is None else finite_real(kappa, "kappa", InvalidKappaError)
         if len(self._store) < 3:
             raise InsufficientDataError(f"the critic needs at least 3 observations, has {len(self._store)}")
         self._check_resume()
@@ -538,7 +529,7 @@ class ERSAC:
         options: fields of SelectionConfig (radius, n_starts, max_points, ...)."""
         from .selection import SelectionConfig, select_policy
 
-        k = self._kappa if kappa is None else _real(kappa, "kappa", InvalidKappaError)
+        k = self._kappa if kappa is None else finite_real(kappa, "kappa", InvalidKappaError)
         self._check_resume()
         if "radius" not in options:
             options["radius"] = 0.5 * self._critic.config.epsilon

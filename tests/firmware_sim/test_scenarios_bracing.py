@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from firmware_sim.plant.linearize import balance_model
 from firmware_sim.scenarios import Bracing
 from firmware_sim.simulator import FailureKind, Simulator
+from helpers.plant import Balancer, balance_gain
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 SEEDS = range(8)
@@ -23,14 +23,8 @@ DAMPING_TIME = 0.01
 
 
 @pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator()
-
-
-@pytest.fixture(scope="module")
-def gains(sim) -> np.ndarray:
-    sim.reset("bracing", 0)
-    return balance_model(sim.physics, sim.control_period).lqr_gain(np.diag([0.5, 200.0, 0.5, 5.0]), 1.0)
+def gains() -> np.ndarray:
+    return balance_gain("bracing")
 
 
 def episode(sim: Simulator, gains: np.ndarray, seed: int, stiffness: float | None = None,
@@ -41,18 +35,13 @@ def episode(sim: Simulator, gains: np.ndarray, seed: int, stiffness: float | Non
     if stiffness is not None:
         for axis in ARM:
             sim.set_impedance(axis, stiffness, DAMPING_TIME * stiffness)
-    pitch0, phi0 = sim.imu().pitch, sim.axis("wheel_left").position
+    balancer = Balancer(sim, gains)
     hands = np.array([sim.physics.geom_id(g) for g in ("hand_left", "hand_right")])
     shell = np.array([sim.physics.geom_id(g) for g in ("chassis", "battery", "torso",
                                                        "upper_arm_left", "upper_arm_right")])
     acc_sq, energy, hands_down, body_down, events = 0.0, 0.0, False, False, []
     for _ in range(round(seconds / sim.control_period)):
-        u = 0.0
-        if balance_after_strike or math.isnan(sim.truth.impact_time):
-            imu, wl, wr = sim.imu(), sim.axis("wheel_left"), sim.axis("wheel_right")
-            x = np.array([0.5 * (wl.position + wr.position) - phi0, imu.pitch - pitch0,
-                          0.5 * (wl.velocity + wr.velocity), imu.pitch_rate])
-            u = float(np.clip(-(gains @ x)[0], -7.85, 7.85))
+        u = balancer.torque() if balance_after_strike or math.isnan(sim.truth.impact_time) else 0.0
         sim.set_wheel_torque(u, u)
         events += sim.step()
         acc_sq += sim.imu().pitch_acc ** 2 * sim.control_period    # what the agent integrates

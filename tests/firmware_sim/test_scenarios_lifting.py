@@ -6,24 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_sim.plant.linearize import balance_model
 from firmware_sim.scenarios import Lifting
 from firmware_sim.simulator import FailureKind, Simulator
+from helpers.plant import Balancer, balance_gain
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 START = (Lifting.pose["shoulder_left"], Lifting.pose["elbow_left"])
 
 
 @pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator()
-
-
-@pytest.fixture(scope="module")
 def gains() -> np.ndarray:
-    s = Simulator()
-    s.reset("idle", 0)
-    return balance_model(s.physics, s.control_period).lqr_gain(np.diag([0.5, 200.0, 0.5, 5.0]), 1.0)
+    return balance_gain("idle")
 
 
 def lift(sim: Simulator, gains: np.ndarray, times, shoulder, elbow, seconds: float = 4.0,
@@ -40,13 +33,10 @@ def lift(sim: Simulator, gains: np.ndarray, times, shoulder, elbow, seconds: flo
     for board in ("arm_left", "arm_right"):
         sim.load_spline(board, t, q, v)
     sim.start_spline()
-    pitch0, phi0 = sim.imu().pitch, sim.axis("wheel_left").position
+    balancer = Balancer(sim, gains)
     heights, events = [], []
     for _ in range(round(seconds / sim.control_period)):
-        imu, wl, wr = sim.imu(), sim.axis("wheel_left"), sim.axis("wheel_right")
-        x = np.array([0.5 * (wl.position + wr.position) - phi0, imu.pitch - pitch0,
-                      0.5 * (wl.velocity + wr.velocity), imu.pitch_rate])
-        u = float(np.clip(-(gains @ x)[0], -7.85, 7.85))
+        u = balancer.torque()
         sim.set_wheel_torque(u, u)
         events += sim.step()
         heights.append(sim.truth.bottle_height)

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
+import re
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -13,27 +15,22 @@ from protocol.zenoh import CHUNK_PATTERN, KeySpace, KeySpaceError
 chunks = st.from_regex(CHUNK_PATTERN, fullmatch=True)
 prefixes = st.lists(chunks, min_size=1, max_size=3).map("/".join)
 
-EXPECTED_SUFFIXES = {
-    "agent_alive": "agent/alive",
-    "agent_go": "agent/go",
-    "episode_run": "episode/run",
-    "episode_done": "episode/done",
-    "learner_state": "learner/state",
-    "learner_critic": "learner/critic",
-    "learner_kappa": "learner/kappa",
-    "learner_weights": "learner/weights",
-    "learner_select": "learner/select",
-    "learner_episodes": "learner/episodes",
-    "learner_error": "learner/error",
-}
+DOC = Path(__file__).resolve().parents[2] / "docs" / "zenoh.md"
+KEY_ROW = re.compile(r"^\|\s*`(\w+)`\s*\|\s*`ersac/ubot1/([\w/]+)`\s*\|")
 
 
-def test_default_prefix_and_every_key():
+def documented_keys() -> dict[str, str]:
+    """The key table of docs/zenoh.md: attribute name -> key of robot ``ubot1``."""
+    rows = (KEY_ROW.match(line) for line in DOC.read_text().splitlines())
+    return {m.group(1): f"ersac/ubot1/{m.group(2)}" for m in rows if m}
+
+
+def test_every_key_is_the_documented_one():
     ks = KeySpace("ubot1")
     assert ks.root == "ersac/ubot1"
-    assert ks.keys() == {name: f"ersac/ubot1/{s}" for name, s in EXPECTED_SUFFIXES.items()}
-    for name in EXPECTED_SUFFIXES:
-        assert getattr(ks, name) == ks.keys()[name]
+    assert ks.keys() == documented_keys()
+    for name, key in ks.keys().items():
+        assert getattr(ks, name) == key
 
 
 def test_custom_prefix_with_several_chunks():

@@ -93,23 +93,23 @@ def test_lifting_terms_rolling_robot():
     assert total == pytest.approx(sum(TASKS["lifting"].default_weights[k] * v for k, v in terms.items()))
 
 
-def test_bottle_height_zero_error_upright_at_goal():
-    n = 10
+def _arms_at_goal(n: int) -> Trace:
+    """n cycles, upright, both arms holding the lifting goal pose."""
     pos = np.zeros((n, 7))
     goal = LiftingPolicy().goal
     pos[:, 3:5] = goal
     pos[:, 5:7] = goal
-    tr = trace(n, position=pos)
+    return trace(n, position=pos)
+
+
+def test_bottle_height_zero_error_upright_at_goal():
+    tr = _arms_at_goal(10)
     assert costs.h_error_sq(costs.bottle_height(tr), 1.2, DT) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_a_dropped_bottle_lies_on_the_floor_from_its_emcy_on():
     n = 100
-    pos = np.zeros((n, 7))
-    goal = LiftingPolicy().goal
-    pos[:, 3:5] = goal
-    pos[:, 5:7] = goal
-    tr = trace(n, position=pos)  # the hands stay at the goal height
+    tr = _arms_at_goal(n)  # the hands stay at the goal height
     task = LiftingTask()
     held = task.cost_terms(tr)["h_error_sq"]
     dropped = task.cost_terms(tr, [EmcyMark(EmcyCode.FALLEN, 10), EmcyMark(EmcyCode.BOTTLE_DROPPED, 60),
