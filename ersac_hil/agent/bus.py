@@ -183,7 +183,12 @@ class AgentBus:
         """NMT state each device last reported in its heartbeat."""
         with self._cond:
             heard = set(self._hb_seen)
-        return {d.name: self.nodes[d.name].nmt.state if d.name in heard else None for d in self.devices}
+        states: dict[str, str | None] = {}
+        for d in self.devices:
+            nmt = self.nodes[d.name].nmt
+            with nmt.state_update:  # canopen updates the state under it, after our heartbeat callback
+                states[d.name] = nmt.state if d.name in heard else None
+        return states
 
     def present(self, device: Device | str) -> bool:
         """Whether the device's heartbeat is fresh."""

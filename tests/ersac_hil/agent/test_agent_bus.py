@@ -15,7 +15,7 @@ from helpers.can_nodes import heartbeats
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can import objects as obj
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS
+from protocol.can.bench import ARM_LEFT, ARM_RIGHT, BENCH, IMU, TORSO, WHEELS
 from protocol.can.objects import Control, EmcyCode, Index, Status
 from protocol.can.sdo import AbortCode
 
@@ -25,6 +25,7 @@ i16 = st.integers(-32768, 32767)
 
 
 def test_nodes_found_and_started(agent_bus):
+    agent_bus.wait_for_nodes(BENCH)  # the fixture waited for the cyclic nodes only
     assert set(agent_bus.nmt_states()) >= {"wheels", "imu", "testbench"}
     assert all(s == "PRE-OPERATIONAL" for s in agent_bus.nmt_states().values())
     agent_bus.nmt_start()

@@ -34,11 +34,23 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """The demo stack with the dashboard, lingering after its run; stopped with Ctrl-C (SIGINT)."""
+def browser(tmp_path_factory):
+    """Headless Chromium, started before the demo so that the page can open with the run."""
     reason = missing()
     if reason:
         pytest.skip(f"{reason}; .ci/run installs it")
+    driver = headless_chromium(tmp_path_factory.mktemp("chromium"))
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+@pytest.fixture(scope="module")
+def demo(browser, tmp_path_factory):
+    """The demo stack with the dashboard, lingering after its run; stopped with Ctrl-C (SIGINT).
+    The page opens as soon as the dashboard is up, before the daemon starts: it sees the whole
+    run live, however fast the run goes."""
     out = tmp_path_factory.mktemp("demo")
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     demo = Child("demo", [sys.executable, "-m", "ersac_hil.cli", "demo", "--out", str(out), "--episodes",
@@ -46,6 +58,7 @@ def demo(tmp_path_factory):
                           "0", "--linger"], ARTIFACTS, ENV)
     try:
         url = demo.wait_for(r"^demo: dashboard (http://\S+)", 120).group(1)
+        browser.get(url)
         demo.wait_for(r"^demo: children ", 60)
         stack = json.loads((out / "stack.json").read_text())
         yield {"url": url, "configs": stack["configs"]}
@@ -56,15 +69,6 @@ def demo(tmp_path_factory):
     children = demo.wait_for(r"^demo: children (.*)$", 1).group(1)
     for pid in (int(item.split("=")[1]) for item in children.split()):
         assert not Path(f"/proc/{pid}").exists() or Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
-
-
-@pytest.fixture(scope="module")
-def browser(demo, tmp_path_factory):
-    driver = headless_chromium(tmp_path_factory.mktemp("chromium"))
-    try:
-        yield driver
-    finally:
-        driver.quit()
 
 
 def _js(driver, script: str):  # noqa: ANN001, ANN202
@@ -88,7 +92,6 @@ def _message(driver) -> str:  # noqa: ANN001
 
 
 def test_page_loads_and_the_curve_gains_points_as_episodes_arrive(demo, browser):
-    browser.get(demo["url"])
     assert browser.title == "ersac-hil dashboard"
     _wait_js(browser, "window.dashboard.points.length >= 1", "a first point")
     first = _js(browser, "window.dashboard.points.length")
