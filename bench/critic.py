@@ -52,7 +52,7 @@ from ersac_hil.critic import GP, VHGP, CriticConfig, CriticError, LocalCritic  #
 from ersac_hil.critic._blas import blas_description  # noqa: E402
 from ersac_hil.critic.datasets import ALL as DATASETS  # noqa: E402
 from ersac_hil.critic.datasets import branin, branin_std, rahbo_sine_cost, rahbo_sine_std  # noqa: E402
-from ersac_hil.learner import ObservationStore  # noqa: E402
+from ersac_hil.learner import Observations  # noqa: E402
 
 Fn = Callable[[np.ndarray], np.ndarray]  # (m, d) -> (m,)
 PUBLISHED = {"goldberg": 0.326, "williams": 0.128, "yuan": 0.073}
@@ -208,10 +208,10 @@ def replicate(pname: str, n: int, variant: str, seed: int) -> Row:
     y = p.J(X) + p.r(X) * rng.standard_normal(len(X))
     Xf = np.clip(c + p.sigma * rng.standard_normal((100, p.d)), p.lo, p.hi)
     yf = p.J(Xf) + p.r(Xf) * rng.standard_normal(100)
-    store = ObservationStore(p.d)
+    observations = Observations(p.d)
     for xi, yi in zip(X, y):
-        store.add(xi, float(yi))
-    critic = LocalCritic(store, VARIANTS[variant](p, n))
+        observations.add(xi, float(yi))
+    critic = LocalCritic(observations, VARIANTS[variant](p, n))
     nan = float("nan")
     ball = np.flatnonzero(np.linalg.norm(X - c, axis=1) <= p.epsilon)
     try:

@@ -99,8 +99,8 @@ class Plan:
 
 
 @dataclass
-class _Run:
-    """Mutable record of one episode in progress."""
+class _Episode:
+    """Mutable record of one episode in progress (``run`` means a learning run elsewhere)."""
     samples: list[Telemetry] = field(default_factory=list)
     failures: dict[str, bool] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
@@ -145,7 +145,7 @@ class EpisodeRunner:
         configuration) propagates: nothing moved."""
         request, task = plan.request, plan.task
         wall0 = time.monotonic()
-        run = _Run()
+        episode = _Episode()
         self.stop_requested.clear()
         bus = self.bus
         emcy_mark = bus.emcy_count
@@ -157,31 +157,31 @@ class EpisodeRunner:
             if testbench:
                 configure.reset_scenario(bus, task.scenario, request.seed)
             elif not self._wait_go():
-                run.status, run.detail = "aborted", "no go signal: the robot was not reset"
-                return self._result(plan, run, wall0)
+                episode.status, episode.detail = "aborted", "no go signal: the robot was not reset"
+                return self._result(plan, episode, wall0)
             emcy_mark = bus.emcy_count
             first = task.configure(bus, plan.setup)
             bus.nmt_start()
             started = True
-            self._loop(plan, run, first, emcy_mark)
+            self._loop(plan, episode, first, emcy_mark)
         except AgentFault as exc:
-            run.status, run.detail = exc.status, str(exc)
-            run.count(_fault_counter(exc))
+            episode.status, episode.detail = exc.status, str(exc)
+            episode.count(_fault_counter(exc))
         finally:
             if started:
                 try:
                     bus.nmt_preop()
                 except AgentFault:
                     pass
-        if testbench and run.status == "ok":
+        if testbench and episode.status == "ok":
             try:  # best effort: ground truth for the summary
                 truth, flags = configure.read_bench_truth(bus)
                 truth.update(task.ground_truth(bus, flags))
-                run.truth.update({k: v for k, v in truth.items() if math.isfinite(v)})
+                episode.truth.update({k: v for k, v in truth.items() if math.isfinite(v)})
             except AgentFault:
                 pass
-        run.emcy = bus.emcy_events(emcy_mark)
-        return self._result(plan, run, wall0)
+        episode.emcy = bus.emcy_events(emcy_mark)
+        return self._result(plan, episode, wall0)
 
     def _testbench_present(self) -> bool:
         """The test bench is on this bus: its heartbeat was heard within ``testbench_recent_s``
@@ -200,7 +200,7 @@ class EpisodeRunner:
     def _wait_go(self) -> bool:
         return bool(self.go is not None and self.go(self.config.go_timeout_s))
 
-    def _loop(self, plan: Plan, run: _Run, commands: Commands, emcy_mark: int) -> None:
+    def _loop(self, plan: Plan, episode: _Episode, commands: Commands, emcy_mark: int) -> None:
         bus, task = self.bus, plan.task
         balance = task.balance
         ctl = BalanceController(self.design(task.name), self.config.robot, balance.payload_kg,
@@ -211,44 +211,44 @@ class EpisodeRunner:
         try:
             tel = bus.cycle(commands)
             ctl.start(tel)
-            run.samples.append(tel)
+            episode.samples.append(tel)
             commands = task.begin(bus, plan.setup, tel, commands)
-            while len(run.samples) < plan.n_cycles:
+            while len(episode.samples) < plan.n_cycles:
                 if self.stop_requested.is_set():
-                    run.status, run.detail = "aborted", "stopped on request"
+                    episode.status, episode.detail = "aborted", "stopped on request"
                     return
-                self._check_emcy(run, emcy_mark)
-                self._flags(run, tel)
-                ctl.payload = task.payload_kg(run.failures)
+                self._check_emcy(episode, emcy_mark)
+                self._flags(episode, tel)
+                ctl.payload = task.payload_kg(episode.failures)
                 left, right = ctl.torque(tel)
                 commands = Commands(wheel_torque=(left, right), torso_position=commands.torso_position,
                                     arm_left=commands.arm_left, arm_right=commands.arm_right,
                                     arm_control=commands.arm_control)
                 tel = bus.cycle(commands)
-                run.samples.append(tel)
-                why = end(tel, len(run.samples), run.failures)
+                episode.samples.append(tel)
+                why = end(tel, len(episode.samples), episode.failures)
                 if why is not None:
-                    run.detail = why
+                    episode.detail = why
                     break
-            self._check_emcy(run, emcy_mark)
-            self._flags(run, tel)
+            self._check_emcy(episode, emcy_mark)
+            self._flags(episode, tel)
         finally:
-            run.count("late_cycles", bus.overruns - overruns0)
-            run.count("saturated_cycles", ctl.saturated_cycles)
+            episode.count("late_cycles", bus.overruns - overruns0)
+            episode.count("saturated_cycles", ctl.saturated_cycles)
             if ctl.fallen:
-                run.failures["fallen"] = True
-            if ctl.released_cycle is not None and run.samples:
-                run.truth["balance_released_s"] = (ctl.released_cycle - run.samples[0].cycle) * bus.timing.period_s
+                episode.failures["fallen"] = True
+            if ctl.released_cycle is not None and episode.samples:
+                episode.truth["balance_released_s"] = (ctl.released_cycle - episode.samples[0].cycle) * bus.timing.period_s
 
-    def _check_emcy(self, run: _Run, emcy_mark: int) -> None:
-        events = self.bus.emcy_events(emcy_mark + len(run.emcy))
+    def _check_emcy(self, episode: _Episode, emcy_mark: int) -> None:
+        events = self.bus.emcy_events(emcy_mark + len(episode.emcy))
         for ev in events:
-            run.emcy.append(ev)
+            episode.emcy.append(ev)
             if ev.code == EmcyCode.NO_ERROR:
                 continue
             flag = OUTCOME_EMCY.get(ev.code)  # type: ignore[call-overload]
             if flag is not None:
-                run.failures[flag] = True
+                episode.failures[flag] = True
             elif ev.code == EmcyCode.HEARTBEAT_LOST:
                 raise HeartbeatLost(f"{ev.device} (lost the agent's heartbeat, EMCY 0x8130)", None,
                                     self.bus.timing.heartbeat_timeout_s)
@@ -256,41 +256,41 @@ class EpisodeRunner:
                 raise EmcyFault(f"EMCY 0x{ev.code:04X} from {ev.device} (register 0x{ev.register:02X})")
 
     @staticmethod
-    def _flags(run: _Run, tel: Telemetry) -> None:
+    def _flags(episode: _Episode, tel: Telemetry) -> None:
         status = tel.any_status
         for bit, flag in OUTCOME_STATUS.items():
             if status & bit:
-                run.failures[flag] = True
+                episode.failures[flag] = True
 
-    def _result(self, plan: Plan, run: _Run, wall0: float) -> EpisodeResult:
+    def _result(self, plan: Plan, episode: _Episode, wall0: float) -> EpisodeResult:
         request = plan.request
         period = self.bus.timing.period_s
-        trace = Trace.from_samples(run.samples, period)
-        run.count("emcy", len(run.emcy))
+        trace = Trace.from_samples(episode.samples, period)
+        episode.count("emcy", len(episode.emcy))
         summary = costs.summary(trace, self.config.robot)
         summary.update(plan.task.summary(trace))
         if len(trace):
-            lat = np.array([s.latency_s for s in run.samples]) * 1000.0
+            lat = np.array([s.latency_s for s in episode.samples]) * 1000.0
             summary["sync_latency_p50_ms"] = float(np.percentile(lat, 50))
             summary["sync_latency_p99_ms"] = float(np.percentile(lat, 99))
             summary["sync_latency_max_ms"] = float(lat.max())
-        summary.update(run.truth)
+        summary.update(episode.truth)
         terms: dict[str, float] = {}
         total = None
-        if run.status == "ok":
-            first = run.samples[0].cycle
-            marks = [EmcyMark(ev.code, min(max(ev.cycle - first, 0), len(trace) - 1)) for ev in run.emcy]
+        if episode.status == "ok":
+            first = episode.samples[0].cycle
+            marks = [EmcyMark(ev.code, min(max(ev.cycle - first, 0), len(trace) - 1)) for ev in episode.emcy]
             terms = plan.task.cost_terms(trace, marks)
             if terms.get("damage"):
-                run.failures["hardware_damage"] = True
+                episode.failures["hardware_damage"] = True
             total = TASKS[request.task].total_cost(terms, self.config.weights.get(request.task))
-        failures = {flag: run.failures.get(flag, False) for flag in
+        failures = {flag: episode.failures.get(flag, False) for flag in
                     ("hardware_damage", "over_current", "fallen", "bottle_dropped")}
         return EpisodeResult(
-            episode_id=request.episode_id, task=request.task, status=run.status,
+            episode_id=request.episode_id, task=request.task, status=episode.status,
             cost_terms=terms, total_cost=total, failures=failures,
             duration_s=len(trace) * period, wall_s=time.monotonic() - wall0,
-            telemetry=summary, fault_counts=dict(run.counts), detail=run.detail[:4096])
+            telemetry=summary, fault_counts=dict(episode.counts), detail=episode.detail[:4096])
 
 
 def _fault_counter(exc: AgentFault) -> str:

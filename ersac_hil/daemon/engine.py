@@ -176,10 +176,10 @@ class Engine:
         if big:
             raise ValueError(f"weights must be within [0, {MAX_WEIGHT:g}], got {big}")
         w = CostWeights(dict(weights))
-        store = self._learner.store
-        if len(store) and set(w.names) == set(store.weights.names):
+        observations = self._learner.observations
+        if len(observations) and set(w.names) == set(observations.weights.names):
             with np.errstate(over="ignore", invalid="ignore"):
-                costs = w.combine_rows(np.asarray(store.terms))
+                costs = w.combine_rows(np.asarray(observations.terms))
             bad = np.flatnonzero(~np.isfinite(costs))
             if bad.size:
                 raise ValueError(f"these weights make the cost of {bad.size} stored episode(s) "

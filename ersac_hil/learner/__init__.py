@@ -3,7 +3,7 @@
 Pure numerics: no I/O, threads or sockets (the daemon shell lives elsewhere).
 """
 
-from .costs import CostWeights, ObservationStore
+from .costs import CostWeights, Observations
 from .errors import (
     CostTermError,
     InsufficientDataError,
@@ -35,7 +35,7 @@ __all__ = [
     "MissingTermError",
     "NoPendingAskError",
     "PendingAskError",
-    "ObservationStore",
+    "Observations",
     "OutOfBoundsError",
     "PendingMismatchError",
     "ProtocolError",

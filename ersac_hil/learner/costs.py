@@ -1,7 +1,7 @@
-"""Costs as weighted sums of named terms, and the learner's observation store.
+"""Costs as weighted sums of named terms, and the learner's observations.
 
 An episode returns named cost terms (e.g. {"impact": .., "energy": .., "damage": ..}); the
-scalar cost the learner optimises is sum_k w_k t_k for a `CostWeights` mapping.  The store
+scalar cost the learner optimises is sum_k w_k t_k for a `CostWeights` mapping.  `Observations`
 keeps every observation's terms, so changing the weights (a new risk context: energy-averse,
 translation-averse) recomputes every stored cost exactly: the sum is always accumulated in
 the sorted order of the names, element-wise, so a cost recomputed from its terms is
@@ -114,7 +114,7 @@ class CostWeights(Mapping[str, float]):
         return float(self.combine_rows(self.term_vector(terms)[None, :])[0])
 
 
-class ObservationStore:
+class Observations:
     """Append-only observations: points (N, d), terms (N, K), costs (N,) under `weights`.
 
     Implements the critic's CriticData protocol (`points`, `costs`)."""

@@ -5,7 +5,7 @@ Ask/tell loop, one episode per ask:
     ask():   z ~ N(0, diag(sigma^2)) (per-parameter sigma: the natural-gradient variant),
              returns executed = clip(theta + z, bounds).
     tell(executed, J^):
-             store (executed, J^); fit the local VHGP critic on the neighbourhood of theta
+             record (executed, J^); fit the local VHGP critic on the neighbourhood of theta
              (which now includes the new observation);
              z      = executed - theta            (the realised, clipped perturbation)
              delta  = J^ - J~(theta) + kappa (r~(theta + z) - r~(theta))
@@ -50,7 +50,7 @@ import numpy as np
 
 from ..critic import CriticConfig, CriticError, CriticEstimate, FitError, LocalCritic, LocalFit
 from ..critic._blas import single_threaded_blas
-from .costs import CostWeights, ObservationStore, finite_real
+from .costs import CostWeights, Observations, finite_real
 from .errors import (
     InsufficientDataError,
     InvalidInputError,
@@ -207,8 +207,8 @@ class ERSAC:
         self._interleave = int(interleave_every)
         self._skipped: list[tuple[int, str]] = []
         self._rng = np.random.Generator(np.random.PCG64(seed))
-        self._store = ObservationStore(d, weights)
-        self._critic = LocalCritic(self._store, cfg)
+        self._observations = Observations(d, weights)
+        self._critic = LocalCritic(self._observations, cfg)
         self._pending: np.ndarray | None = None
         self._n_updates = 0
         self._last_fit: LocalFit | None = None
@@ -285,7 +285,7 @@ class ERSAC:
 
     @property
     def n_observations(self) -> int:
-        return len(self._store)
+        return len(self._observations)
 
     @property
     def skipped_updates(self) -> list[tuple[int, str]]:
@@ -293,13 +293,13 @@ class ERSAC:
         return list(self._skipped)
 
     @property
-    def store(self) -> ObservationStore:
+    def observations(self) -> Observations:
         """The observations (read-only views; add through observe/tell)."""
-        return self._store
+        return self._observations
 
     @property
     def weights(self) -> CostWeights:
-        return self._store.weights
+        return self._observations.weights
 
     @property
     def local_critic(self) -> LocalCritic:
@@ -325,7 +325,7 @@ class ERSAC:
         return self._pending.copy()
 
     def _check_resume(self) -> None:
-        n = len(self._store)
+        n = len(self._observations)
         if n < self._expect_obs:
             raise StateError(f"resume incomplete: state was saved with {self._expect_obs} observations, {n} observed so far")
         if self._expect_digest is not None:
@@ -351,17 +351,17 @@ class ERSAC:
     def _tell(self, X: np.ndarray, costs: list[Mapping[str, float] | float], batched: bool) -> Update:
         """Record the k rows of X (k, d) with their costs, then one update (see module doc)."""
         for x, cost in zip(X, costs):
-            self._store.prepare(x, cost)  # validates every cost before any change
+            self._observations.prepare(x, cost)  # validates every cost before any change
         self._check_resume()
         theta = self._theta.copy()
         Z = X - theta
-        first = len(self._store)
+        first = len(self._observations)
         for x, cost in zip(X, costs):
-            self._store.add(x, cost)
-        J_hat = np.array(self._store.costs[first:], dtype=float)
+            self._observations.add(x, cost)
+        J_hat = np.array(self._observations.costs[first:], dtype=float)
         row = (lambda a: a.mean(axis=0)) if batched else (lambda a: a[0])  # noqa: E731
         try:
-            if len(self._store) < self._min_obs:
+            if len(self._observations) < self._min_obs:
                 upd = Update(
                     self._n_updates, theta, theta.copy(), X if batched else X[0], Z if batched else Z[0],
                     float(row(J_hat)), None, None, None, None, self._kappa, 0.0, True, False, 0,
@@ -370,7 +370,7 @@ class ERSAC:
             else:
                 upd, new_theta, fit = self._update(theta, X, Z, J_hat, batched)
         except BaseException:
-            self._store.truncate(first)
+            self._observations.truncate(first)
             raise
         self._theta = new_theta
         self._last_fit = fit
@@ -430,7 +430,7 @@ class ERSAC:
     def _update_fit(self, theta: np.ndarray) -> LocalFit:
         ids = self._critic.neighbourhood(theta)
         last = self._last_fit
-        if last is not None and np.array_equal(last.ids, ids) and np.array_equal(last.model.y, self._store.costs[ids]):
+        if last is not None and np.array_equal(last.ids, ids) and np.array_equal(last.model.y, self._observations.costs[ids]):
             return last
         every = self._critic.config.cold_every
         also_cold = every > 0 and self._n_updates % every == 0
@@ -499,19 +499,19 @@ class ERSAC:
     def observe(self, executed: object, cost: Mapping[str, float] | float) -> int:
         """Add a past observation without an update (rebuilding the critic); returns its index."""
         x = self._check_params(executed, "executed")
-        return self._store.add(x, cost)
+        return self._observations.add(x, cost)
 
     def reweight(self, weights: CostWeights) -> None:
         """New cost weights: every stored cost is recomputed from its terms."""
-        self._store.reweight(weights)
+        self._observations.reweight(weights)
 
     # ------------------------------------------------------------------ critic queries
     def critic_estimate(self, theta: object, kappa: float | None = None) -> CriticEstimate:
         """J~, r~, F~ and gradients at theta (d,) from its neighbourhood's VHGP."""
         th = self._check_params(theta, "theta")
         k = self._kappa if kappa is None else finite_real(kappa, "kappa", InvalidKappaError)
-        if len(self._store) < 3:
-            raise InsufficientDataError(f"the critic needs at least 3 observations, has {len(self._store)}")
+        if len(self._observations) < 3:
+            raise InsufficientDataError(f"the critic needs at least 3 observations, has {len(self._observations)}")
         self._check_resume()
         with single_threaded_blas():
             try:
@@ -542,8 +542,8 @@ class ERSAC:
     # ------------------------------------------------------------------ state
     def _digest(self, n: int) -> str:
         h = hashlib.sha256()
-        h.update(np.ascontiguousarray(self._store.points[:n]).tobytes())
-        h.update(np.ascontiguousarray(self._store.terms[:n]).tobytes())
+        h.update(np.ascontiguousarray(self._observations.points[:n]).tobytes())
+        h.update(np.ascontiguousarray(self._observations.terms[:n]).tobytes())
         return h.hexdigest()
 
     def get_state(self) -> dict[str, Any]:
@@ -563,12 +563,12 @@ class ERSAC:
             "max_step": self._max_step,
             "interleave_every": self._interleave,
             "critic": self._critic.config.to_dict(),
-            "weights": self._store.weights.to_dict(),
+            "weights": self._observations.weights.to_dict(),
             "rng": _rng_state_to_json(self._rng),
             "pending": None if self._pending is None else self._pending.tolist(),
             "n_updates": self._n_updates,
-            "n_observations": max(len(self._store), self._expect_obs),
-            "observations_sha256": self._digest(len(self._store)) if len(self._store) >= self._expect_obs else self._expect_digest,
+            "n_observations": max(len(self._observations), self._expect_obs),
+            "observations_sha256": self._digest(len(self._observations)) if len(self._observations) >= self._expect_obs else self._expect_digest,
             "last_fit": fit,
             "skipped_updates": [[i, reason] for i, reason in self._skipped],
         }

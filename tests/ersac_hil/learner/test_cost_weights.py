@@ -15,7 +15,7 @@ from ersac_hil.learner import (
     InvalidCostError,
     InvalidInputError,
     MissingTermError,
-    ObservationStore,
+    Observations,
     UnknownTermError,
 )
 
@@ -63,7 +63,7 @@ def test_terms_must_match_the_weights() -> None:
 )
 def test_reweighting_recomputes_every_cost_exactly(terms, w1, w2) -> None:
     W1, W2 = CostWeights(dict(zip(NAMES, w1))), CostWeights(dict(zip(NAMES, w2)))
-    store = ObservationStore(1, W1)
+    store = Observations(1, W1)
     for i, t in enumerate(terms):
         store.add([i * 0.01], dict(zip(NAMES, t)))
     original = store.costs.copy()
@@ -76,7 +76,7 @@ def test_reweighting_recomputes_every_cost_exactly(terms, w1, w2) -> None:
 
 
 def test_reweight_rejects_other_term_sets_and_changes_nothing() -> None:
-    store = ObservationStore(1, CostWeights({"impact": 1.0, "energy": 1.0}))
+    store = Observations(1, CostWeights({"impact": 1.0, "energy": 1.0}))
     store.add([0.0], {"impact": 1.0, "energy": 2.0})
     before = store.costs.copy()
     with pytest.raises(MissingTermError):
@@ -95,15 +95,15 @@ def test_learner_reweight_changes_the_critic_and_is_exact() -> None:
         x = L.ask()
         L.tell(x, {"energy": 2.0 * x[0] + 0.1 * rng.standard_normal(), "translation": 2.0 * (1 - x[0]) + 0.1 * rng.standard_normal()})
     theta = np.array([0.5])
-    before = L.store.costs.copy()
+    before = L.observations.costs.copy()
     slope_base = L.critic_estimate(theta).grad_J[0]
     L.reweight(CostWeights({"energy": 10.0, "translation": 1.0}))  # energy-averse
     slope_energy = L.critic_estimate(theta).grad_J[0]
-    T = L.store.terms
-    assert L.store.costs.tolist() == (0.0 + 10.0 * T[:, 0] + 1.0 * T[:, 1]).tolist()
+    T = L.observations.terms
+    assert L.observations.costs.tolist() == (0.0 + 10.0 * T[:, 0] + 1.0 * T[:, 1]).tolist()
     L.reweight(CostWeights({"energy": 1.0, "translation": 10.0}))  # translation-averse
     slope_translation = L.critic_estimate(theta).grad_J[0]
     assert slope_energy > 5.0 and slope_translation < -5.0 and abs(slope_base) < 3.0
     L.reweight(base)
-    assert L.store.costs.tolist() == before.tolist()
+    assert L.observations.costs.tolist() == before.tolist()
     assert not math.isnan(slope_base)

@@ -54,7 +54,7 @@ def episodes(learner: ERSAC, n: int, noise_seed: int = 1):
 
 
 def snapshot(learner: ERSAC) -> str:
-    return json.dumps(learner.get_state(), sort_keys=True) + repr(learner.store.points.tolist())
+    return json.dumps(learner.get_state(), sort_keys=True) + repr(learner.observations.points.tolist())
 
 
 # ----------------------------------------------------------------------------- the update
@@ -65,7 +65,7 @@ def test_update_matches_hand_computation() -> None:
     assert not u.warmup
     # independent rebuild of the critic the update used: same observations, same VHGP
     fit = L._last_fit
-    X, y = L.store.points[fit.ids], L.store.costs[fit.ids]
+    X, y = L.observations.points[fit.ids], L.observations.costs[fit.ids]
     model = VHGP.from_params(X, y, VHGPParams(fit.model.params.log_lambda, fit.model.params.kernel))
     Xq = np.vstack([u.theta_before, u.executed])
     p = model.predict(Xq)
@@ -171,8 +171,8 @@ def test_ask_is_idempotent_until_tell() -> None:
 def _resume(L: ERSAC) -> ERSAC:
     state = json.loads(json.dumps(L.get_state()))  # through real JSON
     R = ERSAC.from_state(state)
-    names = L.store.weights.names
-    for x, row in zip(L.store.points, L.store.terms):
+    names = L.observations.weights.names
+    for x, row in zip(L.observations.points, L.observations.terms):
         R.observe(x, dict(zip(names, row)))
     return R
 
@@ -207,12 +207,12 @@ def test_resume_checks_the_observations() -> None:
     L.ask()
     state = L.get_state()
     R = ERSAC.from_state(state)
-    for x, c in zip(L.store.points[:10], L.store.costs[:10]):
+    for x, c in zip(L.observations.points[:10], L.observations.costs[:10]):
         R.observe(x, float(c))
     with pytest.raises(StateError):  # incomplete
         R.tell(R.ask(), 1.0)
     R2 = ERSAC.from_state(state)
-    for x, c in zip(L.store.points, L.store.costs):
+    for x, c in zip(L.observations.points, L.observations.costs):
         R2.observe(x, float(c) + 1.0)  # different episodes
     with pytest.raises(StateError):
         R2.tell(R2.ask(), 1.0)

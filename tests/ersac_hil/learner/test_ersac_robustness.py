@@ -39,7 +39,7 @@ def run(L: ERSAC, n: int, cost=None, noise_seed: int = 1):  # noqa: ANN001
 
 def resume(L: ERSAC) -> ERSAC:
     R = ERSAC.from_state(json.loads(json.dumps(L.get_state())))
-    for x, c in zip(L.store.points, L.store.costs):
+    for x, c in zip(L.observations.points, L.observations.costs):
         R.observe(x, float(c))
     return R
 
@@ -69,7 +69,7 @@ def test_a_fit_record_that_cannot_be_rebuilt_does_not_block_resume() -> None:
     state = json.loads(json.dumps(L.get_state()))
     state["last_fit"]["params"]["log_lambda"] = state["last_fit"]["params"]["log_lambda"][:-1]
     R = ERSAC.from_state(state)
-    for x, c in zip(L.store.points, L.store.costs):
+    for x, c in zip(L.observations.points, L.observations.costs):
         R.observe(x, float(c))
     u = R.tell(R.ask(), 2.0)
     assert u.skipped is None and u.J_tilde is not None
@@ -103,7 +103,7 @@ def test_interleaved_search_moves_to_the_local_argmin_every_k_updates() -> None:
     assert any(u.offline for u in real)
     for u in real:
         if u.offline:  # a local greedy move: within epsilon / 2 of a point near theta
-            near = L.store.points[:u.index + 1, 0]
+            near = L.observations.points[:u.index + 1, 0]
             assert np.min(np.abs(near - u.theta_after[0])) <= 0.3 / 2 + 1e-9
             assert abs(u.theta_after[0] - u.theta_before[0]) <= 2 * 0.3 + 1e-9
     R = resume(L)  # the option survives the state round trip

@@ -35,7 +35,7 @@ def test_finds_the_risk_sensitive_optimum_inside_the_data() -> None:
     assert s.distance_to_data <= 0.1 + 1e-9 and s.kappa == 2.0
     # optimal under the model: no observed point has a lower F~
     fit = L.local_critic.fit_ids(np.arange(150), local=False)
-    assert s.F_tilde <= fit.estimate_many(L.store.points, 2.0)[2].min() + 1e-9
+    assert s.F_tilde <= fit.estimate_many(L.observations.points, 2.0)[2].min() + 1e-9
     # risk-neutral selection is stiffer (the noise there, 0.5-1.3, hides where exactly
     # J's flat optimum at 0.8 lies: J(0.5) - J(0.8) = 0.135)
     s0 = L.select(0.0, radius=0.1)
@@ -61,7 +61,7 @@ def test_stays_in_the_trust_region(radius: float) -> None:
     L = learner_with_data(np.random.default_rng(2).uniform(0.0, 0.5, 120))
     s = L.select(0.0, radius=radius)
     assert s.distance_to_data <= radius * (1 + 1e-6)
-    edge = L.store.points.max()
+    edge = L.observations.points.max()
     assert edge + radius * (1 + 1e-6) >= s.theta[0] > edge - 0.05
 
 
