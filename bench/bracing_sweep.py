@@ -6,7 +6,7 @@
 
 For every theta of the grid (default 0, 0.05, ..., 1), runs ``--episodes`` bracing episodes,
 seeds first-seed .. first-seed + episodes - 1 (the same seeds for every theta: common random
-numbers, so differences between thetas are not seed noise), on an in-process simulated bench
+numbers, so differences between thetas are not seed noise), on an in-process simulated robot
 over a virtual CAN bus, exactly as the learner gets them (``EpisodeRunner.plan`` / ``run``, the
 agent's default configuration and weights). Prints one progress line per theta, then the table
 (theta, K, mean, std and F2 = mean + 2 std of the total cost J with bootstrap standard errors,
@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 from ersac_hil.agent.bus import AgentBus  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.agent.policies import BracingPolicy  # noqa: E402
-from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
+from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from ersac_hil.reproduce import figures  # noqa: E402
 from ersac_hil.reproduce.stats import Landscape  # noqa: E402
@@ -53,7 +53,7 @@ def sweep(thetas: list[float], episodes: int, first_seed: int = 0,
     config = BusConfig("virtual", f"sweep-{uuid.uuid4().hex[:8]}")
     out: dict[float, list[EpisodeResult]] = {}
     t0 = time.perf_counter()
-    with SimulatedBench(config):
+    with SimulatedRobot(config):
         bus = AgentBus(config).open()
         try:
             bus.wait_for_nodes()
@@ -112,7 +112,7 @@ def main() -> None:
     if args.per_episode:
         for theta, rs in results.items():
             for r in rs:
-                p = r.telemetry.get("bench_impact_momentum_ns", float("nan"))
+                p = r.telemetry.get("truth_impact_momentum_ns", float("nan"))
                 print(f"theta {theta:4.2f} p {p:5.2f} J {r.total_cost:7.1f} "
                       + " ".join(f"{k} {v:8.2f}" for k, v in r.cost_terms.items()))
     land = landscape(results, args.bootstrap)
@@ -130,7 +130,7 @@ def main() -> None:
                "F2_gap": g, "F2_gap_se": se,
                "episodes_detail": {f"{t:.2f}": [{"seed": args.first_seed + i, "total_cost": r.total_cost,
                                                   "terms": dict(r.cost_terms),
-                                                  "momentum": r.telemetry.get("bench_impact_momentum_ns")}
+                                                  "momentum": r.telemetry.get("truth_impact_momentum_ns")}
                                                  for i, r in enumerate(rs)]
                                    for t, rs in results.items()}}
         (args.out / "landscape.json").write_text(json.dumps(doc, indent=1))

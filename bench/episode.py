@@ -8,7 +8,7 @@ the median wall time, the real-time factor (simulated episode time / wall time) 
 SYNC-cycle latency (SYNC sent -> last TPDO of that SYNC received) p50/p99 as the agent measured
 it. Backends:
 
-* ``virtual``: agent and simulated bench in this process (python-can's virtual bus is
+* ``virtual``: agent and simulated robot in this process (python-can's virtual bus is
   in-process only);
 * ``remote``: the loopback hub in this process, the simulator (``python -m firmware_sim``) and
   the agent (``ersac-hil agent``) as separate processes, as deployed;
@@ -70,9 +70,9 @@ def run_episodes(session, n: int) -> dict[str, list[EpisodeResult]]:
 def in_process(config: BusConfig, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
     from ersac_hil.agent.bus import BusTiming
     from ersac_hil.agent.service import AgentConfig, AgentService
-    from firmware_sim.nodes.simbench import SimulatedBench
+    from firmware_sim.nodes.simrobot import SimulatedRobot
 
-    with EmbeddedRouter() as router, SimulatedBench(config, realtime=realtime):
+    with EmbeddedRouter() as router, SimulatedRobot(config, realtime=realtime):
         agent = AgentConfig(robot=ROBOT, bus=config, zenoh_connect=(router.endpoint,),
                             timing=BusTiming(realtime=realtime))
         with AgentService(agent), router.open_client() as session:

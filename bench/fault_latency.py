@@ -3,12 +3,12 @@
     python bench/fault_latency.py [--reps N]
 
 Per CAN backend (``virtual`` in this process, ``remote`` through a loopback hub in this
-process), against the simulated bench (``SimulatedBench``), N repetitions of:
+process), against the simulated robot (``SimulatedRobot``), N repetitions of:
 
 * heartbeat loss: the agent's heartbeat stops -> EMCY 0x8130 from every controller (target:
   within 3 agent heartbeat periods + 100 ms, 0.4 s: the controllers consume it with 250 ms);
 * missing TPDO: the IMU node leaves the bus -> ``PdoTimeout`` of the next cycle (target < 1 s);
-* bench gone: every node leaves mid-run -> ``AgentFault`` (target < 1 s);
+* robot gone: every node leaves mid-run -> ``AgentFault`` (target < 1 s);
 * no simulator: an episode on an empty bus -> ``fault_simulator`` (target < 3 s).
 
 Prints median and maximum per figure beside its target, and the load average: the figures
@@ -35,13 +35,13 @@ from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.agent.errors import AgentFault, PdoTimeout  # noqa: E402
 from ersac_hil.agent.telemetry import ACTUATED  # noqa: E402
 from ersac_hil.canbus import LoopbackHub  # noqa: E402
-from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
+from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.can.objects import EmcyCode  # noqa: E402
 from protocol.zenoh import EpisodeRequest  # noqa: E402
 
 TARGETS_S = {"heartbeat loss -> EMCY": 0.4, "missing TPDO -> PdoTimeout": 1.0,
-             "bench gone -> fault": 1.0, "no simulator -> fault": 3.0}
+             "robot gone -> fault": 1.0, "no simulator -> fault": 3.0}
 
 
 @contextmanager
@@ -54,16 +54,16 @@ def backend(kind: str) -> Iterator[BusConfig]:
 
 
 @contextmanager
-def rig(config: BusConfig) -> Iterator[tuple[SimulatedBench, AgentBus]]:
-    bench = SimulatedBench(config)
+def rig(config: BusConfig) -> Iterator[tuple[SimulatedRobot, AgentBus]]:
+    robot = SimulatedRobot(config)
     try:
         with AgentBus(config) as bus:
             bus.wait_for_nodes()
             bus.nmt_start()
             bus.cycle()
-            yield bench, bus
+            yield robot, bus
     finally:
-        bench.close()
+        robot.close()
 
 
 def heartbeat_loss(config: BusConfig) -> float:
@@ -78,10 +78,10 @@ def heartbeat_loss(config: BusConfig) -> float:
         return time.perf_counter() - t0
 
 
-def _fault_after(config: BusConfig, remove: Callable[[SimulatedBench], None],
+def _fault_after(config: BusConfig, remove: Callable[[SimulatedRobot], None],
                  expected: type[AgentFault]) -> float:
-    with rig(config) as (bench, bus):
-        remove(bench)
+    with rig(config) as (robot, bus):
+        remove(robot)
         t0 = time.perf_counter()
         try:
             for _ in range(1000):
@@ -92,12 +92,12 @@ def _fault_after(config: BusConfig, remove: Callable[[SimulatedBench], None],
 
 
 def missing_tpdo(config: BusConfig) -> float:
-    return _fault_after(config, lambda bench: bench.nodes["imu"].close(), PdoTimeout)
+    return _fault_after(config, lambda robot: robot.nodes["imu"].close(), PdoTimeout)
 
 
-def bench_gone(config: BusConfig) -> float:
-    def remove_all(bench: SimulatedBench) -> None:
-        for node in bench.nodes.values():
+def robot_gone(config: BusConfig) -> float:
+    def remove_all(robot: SimulatedRobot) -> None:
+        for node in robot.nodes.values():
             node.close()
     return _fault_after(config, remove_all, AgentFault)
 
@@ -115,7 +115,7 @@ def no_simulator(config: BusConfig) -> float:
 
 FIGURES: dict[str, Callable[[BusConfig], float]] = {
     "heartbeat loss -> EMCY": heartbeat_loss, "missing TPDO -> PdoTimeout": missing_tpdo,
-    "bench gone -> fault": bench_gone, "no simulator -> fault": no_simulator}
+    "robot gone -> fault": robot_gone, "no simulator -> fault": no_simulator}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -38,7 +38,7 @@ from protocol.zenoh import EpisodeRequest  # noqa: E402
 #: (label, regular expression on a frame) -> inclusive share printed per process.
 INTEREST = [
     ("physics: Simulator.step", r"^Simulator\.step \("),
-    ("sim: SYNC handler total", r"^SimulatedBench\._on_sync \("),
+    ("sim: SYNC handler total", r"^SimulatedRobot\._on_sync \("),
     ("sim: TPDO sampling + send", r"^SlaveNode\.transmit_tpdos \("),
     ("agent: AgentBus.cycle", r"^AgentBus\.cycle \("),
     ("agent: episode loop", r"^EpisodeRunner\._loop \("),

@@ -1,10 +1,10 @@
 """Simulator speed: bare physics real-time factor per scenario, and lock-step cycles per
-second through the whole CAN stack (SimulatedBench nodes <-> a canopen master) per backend.
+second through the whole CAN stack (SimulatedRobot nodes <-> a canopen master) per backend.
 
     python bench/sim_speed.py [--cycles N]
 
 Prints a table; no pass/fail. One lock-step cycle = the master sends the wheel and arm RPDOs
-and SYNC, the bench applies them, steps 5 ms of physics, and the master waits for all 13
+and SYNC, the robot applies them, steps 5 ms of physics, and the master waits for all 13
 synchronous TPDOs.
 """
 from __future__ import annotations
@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
-from firmware_sim.nodes.simbench import SimulatedBench  # noqa: E402
+from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can import cobid  # noqa: E402
-from protocol.can.bench import BENCH, object_dictionary  # noqa: E402
+from protocol.can.devices import DEVICES, object_dictionary  # noqa: E402
 from protocol.can.busconfig import BusConfig, open_network  # noqa: E402
 from protocol.can.pdo import cyclic_pdos  # noqa: E402
 import sim_physics  # noqa: E402
@@ -34,10 +34,10 @@ import sim_physics  # noqa: E402
 
 def can_cycles_per_second(config: BusConfig, cycles: int) -> tuple[float, float, float]:
     """(cycles/s, p50 ms, p99 ms) of lock-step cycles over ``config``."""
-    bench = SimulatedBench(config)
+    robot = SimulatedRobot(config)
     net = open_network(config)
     try:
-        nodes = [net.add_node(d.node_id, object_dictionary(d)) for d in BENCH]
+        nodes = [net.add_node(d.node_id, object_dictionary(d)) for d in DEVICES]
         tpdos = [p.cob_id for p in cyclic_pdos() if p.direction == "tpdo"]
         got = threading.Semaphore(0)
         for c in tpdos:
@@ -62,7 +62,7 @@ def can_cycles_per_second(config: BusConfig, cycles: int) -> tuple[float, float,
         total = time.perf_counter() - t_start
     finally:
         net.disconnect()
-        bench.close()
+        robot.close()
     lat.sort()
     return cycles / total, 1000 * lat[len(lat) // 2], 1000 * lat[int(0.99 * (len(lat) - 1))]
 

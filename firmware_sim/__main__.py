@@ -1,4 +1,4 @@
-"""``python -m firmware_sim`` (also ``ersac-hil sim``): the simulated bench on a CAN bus.
+"""``python -m firmware_sim`` (also ``ersac-hil sim``): the simulated robot on a CAN bus.
 
     python -m firmware_sim --bus-interface remote --bus-channel ws://127.0.0.1:PORT/ --seed 3
     python -m firmware_sim --snapshot out.png --scenario bracing
@@ -28,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="ersac-hil sim", description="MuJoCo uBot bench as CANopen nodes")
+    p = _Parser(prog="ersac-hil sim", description="MuJoCo uBot robot as CANopen nodes")
     p.add_argument("--bus-interface", help="python-can interface (virtual, remote, socketcan)")
     p.add_argument("--bus-channel", help="channel (ws://127.0.0.1:PORT/ for the loopback hub, vcan0, ...)")
     p.add_argument("--bitrate", type=int, default=None)
@@ -111,24 +111,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"snapshot: {args.snapshot}")
         return 0
 
-    from firmware_sim.nodes.simbench import SimulatedBench
+    from firmware_sim.nodes.simrobot import SimulatedRobot
 
     # SIGINT/SIGTERM stay pending for sigwait below; blocked before any thread starts, so
-    # every thread of the bench inherits the mask and none of them is interrupted
+    # every thread of the robot inherits the mask and none of them is interrupted
     signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     if args.realtime:  # before the bus and its threads exist: they inherit the policy
         from protocol.can.realtime import request_realtime
         print(f"simulator: {request_realtime()}", flush=True)
-    bench = SimulatedBench(config, seed=args.seed, realtime=args.realtime,
+    robot = SimulatedRobot(config, seed=args.seed, realtime=args.realtime,
                            control_period=args.control_period, substeps=args.substeps)
     mode = "real-time" if args.realtime else "lock-step"
-    print(f"simulator: {len(bench.nodes)} nodes on {config.describe()}, {mode}, "
+    print(f"simulator: {len(robot.nodes)} nodes on {config.describe()}, {mode}, "
           f"{1 / args.control_period:g} Hz", flush=True)
     try:
         received = signal.sigwait(_SIGNALS)
     finally:
-        bench.close()
-        s = bench.stats
+        robot.close()
+        s = robot.stats
         print(f"simulator stopped: {s.cycles} cycles, {s.resets} resets, {s.overruns} overruns, "
               f"physics {1000 * s.step_seconds / max(s.cycles, 1):.2f} ms/cycle", flush=True)
     return 128 + received

@@ -1,6 +1,6 @@
-"""Generate the bench's EDS files (protocol/can/eds/*.eds) from the object table in
+"""Generate the devices' EDS files (protocol/can/eds/*.eds) from the object table in
 ``protocol.can.objects`` (indices, names, types, access, limits, scaling) and the device
-table in ``protocol.can.bench`` (axes, heartbeat periods). What is decided here: which objects
+table in ``protocol.can.devices`` (axes, heartbeat periods). What is decided here: which objects
 each device has, their per-device defaults, and the PDO maps.
 
 The EDS files are the contract (both the agent and the simulator load them). Run
@@ -15,7 +15,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from protocol.can.bench import (AGENT_NODE_ID, ARM_LEFT, CONSUMER_HEARTBEAT_MS, HEARTBEAT_PERIOD_MS,
+from protocol.can.devices import (AGENT_NODE_ID, ARM_LEFT, CONSUMER_HEARTBEAT_MS, HEARTBEAT_PERIOD_MS,
                                 TORSO, WHEELS)
 from protocol.can.objects import (OBJECTS, SPLINE_MAX_KNOTS, WHEEL_POSITION_OBJECT, DataType, Index,
                                   ObjectSpec, spline_position_index, spline_velocity_index)
@@ -131,14 +131,14 @@ def devices() -> list[Device]:
     imu.tpdos = [pdo((0x2100, 0, 16), (0x2101, 0, 16), (0x2102, 0, 16), (0x2010, 0, 16)),
                  pdo((0x2103, 0, 16), (0x2104, 0, 16))]
 
-    bench = Device("testbench.eds", "uBot simulated test bench", 0x00F0,
+    testbench = Device("testbench.eds", "uBot simulated test bench", 0x00F0,
                    "Simulator-only node: scenario selection, seed, reset, impact trigger, ground truth")
-    bench.objects = [STATUS] + [obj(i) for i in (
+    testbench.objects = [STATUS] + [obj(i) for i in (
         Index.SCENARIO, Index.SEED, Index.RESET, Index.IMPACT_TRIGGER, Index.IMPACT_MOMENTUM)] + [
         obj(Index.CABLE_TENSION, axes=("left", "right"))] + [obj(i) for i in (
             Index.BOTTLE_HEIGHT, Index.SIM_TIME, Index.GROUND_TRUTH_FLAGS, Index.BALANCE_FREE,
             Index.BOTTLE_COM_HEIGHT)]
-    return [wheel, torso, arm, imu, bench]
+    return [wheel, torso, arm, imu, testbench]
 
 
 # ---- EDS writer -----------------------------------------------------------------------------

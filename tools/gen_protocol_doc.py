@@ -9,7 +9,7 @@ from pathlib import Path
 
 from canopen.objectdictionary import ODVariable
 
-from protocol.can.bench import (AGENT_NODE_ID, BENCH, CONSUMER_HEARTBEAT_MS, HEARTBEAT_PERIOD_MS,
+from protocol.can.devices import (AGENT_NODE_ID, DEVICES, CONSUMER_HEARTBEAT_MS, HEARTBEAT_PERIOD_MS,
                                 object_dictionary)
 from protocol.can.busload import bus_load
 from protocol.can.objects import EmcyCode, Status, Control
@@ -42,12 +42,12 @@ def render() -> str:
              "object 0x1016) and goes to zero torque with EMCY 0x8130 when it stops.", "",
              "## Nodes", "", "| node-id | device | EDS | axes (sub-index order) |", "|---|---|---|---|",
              f"| 0x{AGENT_NODE_ID:02X} | agent (NMT master, SYNC producer) | - | - |"]
-    for d in BENCH:
+    for d in DEVICES:
         extra = " (simulated benches only)" if d.simulated_only else ""
         lines.append(f"| 0x{d.node_id:02X} | {d.name}{extra} | {d.eds} | {', '.join(d.joints) or '-'} |")
     lines += ["", "## PDO maps", "", "| device | PDO | COB-ID | bytes | entries (unit per count) |",
               "|---|---|---|---|---|"]
-    for d in BENCH:
+    for d in DEVICES:
         u = units(d)
         for p in pdo_maps(d):
             entries = ", ".join(f"{e.name} 0x{e.index:04X}:{e.subindex} ({u.get(e.index, '')})"
@@ -57,7 +57,7 @@ def render() -> str:
     lines += ["", f"Worst-case bus load of this schedule (`ersac-hil bus-load`): "
               f"**{load.percent:.1f} %** at 1 Mbit/s, 200 Hz (budget 50 %).", "",
               "## Manufacturer objects", ""]
-    for d in BENCH:
+    for d in DEVICES:
         if d.name == "arm_right":
             continue
         od, u = object_dictionary(d), units(d)

@@ -26,9 +26,9 @@ export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MUJOCO_GL=${MUJOCO_GL:-egl}
 import protocol, firmware_sim, ersac_hil, sys
 for pkg in (protocol, firmware_sim, ersac_hil):
     assert "/venv/" in pkg.__file__, f"{pkg.__name__} imported from {pkg.__file__}, not the wheel"
-from protocol.can.bench import BENCH, object_dictionary
+from protocol.can.devices import DEVICES, object_dictionary
 from protocol.zenoh.jsonschema import SCHEMA_DIR, payload_schemas, render
-assert all(object_dictionary(d) for d in BENCH)          # EDS files shipped
+assert all(object_dictionary(d) for d in DEVICES)         # EDS files shipped
 assert all((SCHEMA_DIR / f"{n}.json").read_text() == render(s) for n, s in payload_schemas().items())
 from firmware_sim.plant.physics import UBOT_XML
 from firmware_sim.scenarios.bracing import PENDULUM_XML

@@ -1,6 +1,6 @@
 """The agent's CANopen master: NMT, SDO configuration, heartbeats, EMCY and the SYNC cycle.
 
-``AgentBus`` owns one ``canopen.Network`` on a ``BusConfig`` with a ``RemoteNode`` per bench
+``AgentBus`` owns one ``canopen.Network`` on a ``BusConfig`` with a ``RemoteNode`` per
 device (built from the EDS files; PDO maps read from the object dictionary, never uploaded
 over SDO). NMT commands and the nodes' NMT states are canopen's NMT master (``network.nmt``,
 ``node.nmt``); it produces the agent's heartbeat (``HeartbeatProducer``), keeps the age of every
@@ -14,7 +14,7 @@ the cyclic exchange::
 
 ``cycle`` sends every RPDO, then SYNC, then waits (up to ``deadline_s``) until every
 synchronous TPDO of that SYNC has arrived, and returns the decoded ``Telemetry``. Lock-step
-(default): the next SYNC goes out as soon as the caller asks for it, so a simulated bench runs
+(default): the next SYNC goes out as soon as the caller asks for it, so a simulated robot runs
 as fast as it can. Real-time: SYNC is paced by the wall clock at ``period_s``; a cycle that
 finishes after its slot counts as an overrun. Failures raise ``PdoTimeout``,
 ``HeartbeatLost`` or ``BusDown`` (``errors.py``); the caller decides what they end.
@@ -40,7 +40,7 @@ from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeM
 from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
-from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device, object_dictionary
+from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import Scale
 from protocol.can.pdo import pdo_maps, pdo_struct
@@ -54,9 +54,9 @@ class BusTiming:
 
     Attributes:
         period_s: control period, the SYNC interval in real-time mode (default 5 ms, 200 Hz).
-        deadline_s: how long a cycle waits for its TPDOs after SYNC (a real bench answers
+        deadline_s: how long a cycle waits for its TPDOs after SYNC (a robot's controllers answer
             within a millisecond; the default leaves room for a simulator on a loaded machine
-            and still ends an episode well within a second of the bench going away).
+            and still ends an episode well within a second of the robot going away).
         heartbeat_timeout_s: a node whose last heartbeat is older is lost (producers send
             every 100 ms; the default tolerates five missed heartbeats plus scheduling jitter).
         realtime: pace SYNC by the wall clock instead of lock-step.
@@ -84,10 +84,10 @@ class EmcyEvent:
 
 
 class AgentBus:
-    """CANopen master of the uBot bench (see the module docstring). Not re-entrant: one
+    """CANopen master of the uBot (see the module docstring). Not re-entrant: one
     caller thread drives ``cycle`` and the SDO helpers."""
 
-    def __init__(self, config: BusConfig, devices: tuple[Device, ...] = BENCH,
+    def __init__(self, config: BusConfig, devices: tuple[Device, ...] = DEVICES,
                  timing: BusTiming = BusTiming()) -> None:
         self.config, self.devices, self.timing = config, tuple(devices), timing
         self._by_name = {d.name: d for d in self.devices}

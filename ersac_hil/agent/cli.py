@@ -10,7 +10,7 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("agent", help="robot-side agent: Zenoh episode/run -> CANopen bench")
+    p = subparsers.add_parser("agent", help="robot-side agent: Zenoh episode/run -> CANopen robot")
     p.add_argument("--robot", required=True, help="robot name (key chunk), e.g. ubot1")
     p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
     p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")

@@ -1,4 +1,4 @@
-"""SDO configuration of the bench before an episode (the I/O edge of the policies).
+"""SDO configuration of the robot before an episode (the I/O edge of the policies).
 
 All values in SI units, scaled with ``protocol.can.objects``; a refusal by a controller
 raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``.
@@ -8,14 +8,14 @@ from __future__ import annotations
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from protocol.can import objects as obj
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH, Device
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, TESTBENCH, Device
 from protocol.can.objects import Index, Scenario, spline_position_index, spline_velocity_index
 
 ARMS: tuple[Device, ...] = (ARM_LEFT, ARM_RIGHT)
 
 
 def reset_scenario(bus: AgentBus, scenario: Scenario, seed: int) -> None:
-    """Test bench: scenario, seed, then the reset command (the bench confirms the SDO once the
+    """Test bench: scenario, seed, then the reset command (the test bench confirms the SDO once the
     scenario is in its initial state and every board is back at its power-on defaults)."""
     bus.write(TESTBENCH, Index.SCENARIO, 0, int(scenario))
     bus.write(TESTBENCH, Index.SEED, 0, int(seed))
@@ -43,9 +43,9 @@ def download_spline(bus: AgentBus, arm: Device, spline: Spline) -> None:
     bus.write(arm, Index.SPLINE_KNOT_COUNT, 0, len(spline.times))
 
 
-def read_bench_truth(bus: AgentBus) -> tuple[dict[str, float], obj.Status]:
-    """Test-bench readouts every task has (simulated benches only) and the bench's ground-truth
+def read_truth(bus: AgentBus) -> tuple[dict[str, float], obj.Status]:
+    """Test-bench readouts every task has (simulated robots only) and its ground-truth
     status word (for the task's own readouts, ``Task.ground_truth``)."""
     flags = obj.Status(int(bus.read(TESTBENCH, Index.GROUND_TRUTH_FLAGS)))
-    return ({"bench_damaged": float(bool(flags & obj.Status.CABLE_BROKEN)),
-             "bench_fallen": float(bool(flags & obj.Status.FALLEN))}, flags)
+    return ({"truth_damaged": float(bool(flags & obj.Status.CABLE_BROKEN)),
+             "truth_fallen": float(bool(flags & obj.Status.FALLEN))}, flags)

@@ -4,7 +4,7 @@
     plan = runner.plan(request)          # pure: refuses (RequestRefused) before touching anything
     result = runner.run(plan)            # EpisodeResult, never raises for hardware faults
 
-The runner knows no task: what theta means, how the bench is configured, the arm commands,
+The runner knows no task: what theta means, how the robot is configured, the arm commands,
 when the episode ends early and the cost terms are the task's (``ersac_hil.agent.tasks``),
 looked up by the request's task name among ``EpisodeConfig.tasks`` (``UnknownTask``, reply
 ``unknown_task``, when this agent does not serve it). ``run``:
@@ -40,7 +40,7 @@ from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, Pe
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.tasks import EmcyMark, Task, default_tasks, lookup
 from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
-from protocol.can.bench import TESTBENCH
+from protocol.can.devices import TESTBENCH
 from protocol.can.objects import EmcyCode, Status
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
 
@@ -175,7 +175,7 @@ class EpisodeRunner:
                     pass
         if testbench and episode.status == "ok":
             try:  # best effort: ground truth for the summary
-                truth, flags = configure.read_bench_truth(bus)
+                truth, flags = configure.read_truth(bus)
                 truth.update(task.ground_truth(bus, flags))
                 episode.truth.update({k: v for k, v in truth.items() if math.isfinite(v)})
             except AgentFault:
@@ -185,7 +185,7 @@ class EpisodeRunner:
 
     def _testbench_present(self) -> bool:
         """The test bench is on this bus: its heartbeat was heard within ``testbench_recent_s``
-        (a loose window: a loaded machine may delay heartbeats, and mistaking a simulated bench
+        (a loose window: a loaded machine may delay heartbeats, and mistaking a simulated robot
         for a real robot would wait for a go signal); if never heard yet, listen for one
         ``testbench_wait_s`` (the nodes' heartbeat timers are independent)."""
         deadline = time.monotonic() + self.config.testbench_wait_s

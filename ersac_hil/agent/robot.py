@@ -205,4 +205,4 @@ class RobotParameters:
 
 
 UBOT = RobotParameters()
-"""The uBot-5 of this bench."""
+"""The uBot-5 the agent drives."""

@@ -3,7 +3,7 @@
 Both are frozen dataclasses; the CANopen encoding (counts, PDO layout) lives in ``bus.py``.
 ``Trace`` stacks the telemetry of an episode into arrays for the cost terms.
 
-Joint order everywhere is ``JOINTS`` (the ``joints`` of the bench devices in node-id order):
+Joint order everywhere is ``JOINTS`` (the ``joints`` of the devices in node-id order):
 ``wheel_left, wheel_right, torso, shoulder_left, elbow_left, shoulder_right, elbow_right``.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.can import objects as obj
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, Device
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, Device
 from protocol.can.objects import Control, Index, Status
 
 ACTUATED: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT)

@@ -12,7 +12,7 @@ import threading
 import canopen
 
 from protocol.can import cobid
-from protocol.can.bench import AGENT_NODE_ID, HEARTBEAT_PERIOD_MS
+from protocol.can.devices import AGENT_NODE_ID, HEARTBEAT_PERIOD_MS
 from protocol.can.nmt import OPERATIONAL
 
 

@@ -5,11 +5,11 @@ import threading
 
 import can
 
-from protocol.can.bench import BENCH
+from protocol.can.devices import DEVICES
 from protocol.can.busconfig import BusConfig, open_bus
 from protocol.can.cobid import classify
 
-_NAMES = {d.node_id: d.name for d in BENCH} | {1: "agent"}
+_NAMES = {d.node_id: d.name for d in DEVICES} | {1: "agent"}
 
 
 def describe(msg: can.Message) -> str:

@@ -1,4 +1,4 @@
-"""CANopen nodes of the simulated bench."""
+"""CANopen nodes of the simulated robot."""
 from firmware_sim.nodes.base import NodeApplication, SlaveNode, StaticApplication
 
 __all__ = ["NodeApplication", "SlaveNode", "StaticApplication"]

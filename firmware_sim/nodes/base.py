@@ -1,4 +1,4 @@
-"""The firmware's CANopen stack: a CiA 301 slave built from a bench EDS file.
+"""The firmware's CANopen stack: a CiA 301 slave built from a device's EDS file.
 
 ``SlaveNode`` extends canopen's ``LocalNode`` with what canopen 2.4 leaves to the application
 (its LocalNode ignores SYNC, keeps RPDO values out of the object dictionary, has no heartbeat
@@ -25,7 +25,7 @@ from canopen.nmt import NMT_COMMANDS, NmtSlave
 from canopen.sdo import SdoAbortedError
 
 from protocol.can import cobid
-from protocol.can.bench import AGENT_NODE_ID, Device, object_dictionary
+from protocol.can.devices import AGENT_NODE_ID, Device, object_dictionary
 from protocol.can.nmt import INITIALISING, OPERATIONAL, PRE_OPERATIONAL
 from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
@@ -112,7 +112,7 @@ class _Nmt(NmtSlave):
 
 
 class SlaveNode(canopen.LocalNode):
-    """One bench device on the bus. ``connect(network)`` brings it up (boot-up message,
+    """One device on the bus. ``connect(network)`` brings it up (boot-up message,
     PRE-OPERATIONAL, heartbeat); ``close()`` takes it off again.
 
     With ``own_sync=True`` the node reacts to SYNC itself (apply commands, sample, send);
@@ -226,7 +226,7 @@ class SlaveNode(canopen.LocalNode):
 
     def reset_application(self) -> None:
         """Power-on state of the application (commands forgotten, defaults back) without an
-        NMT reset: what a simulated bench does when it starts a new scenario."""
+        NMT reset: what a simulated robot does when it starts a new scenario."""
         with self._lock:
             self._pending.clear()
             for pdo_map in self.rpdo.map.values():

@@ -1,4 +1,4 @@
-"""What each device of the simulated bench does: the glue between its CANopen node and the
+"""What each device of the simulated robot does: the glue between its CANopen node and the
 simulator (``firmware_sim.simulator.Simulator``).
 
 One ``NodeApplication`` per device type. Raw bus values are converted with the scales in
@@ -19,7 +19,7 @@ from firmware_sim.plant import AXES
 from firmware_sim.nodes.base import Key, NodeApplication
 from firmware_sim.simulator import Simulator
 from protocol.can import objects as o
-from protocol.can.bench import Device
+from protocol.can.devices import Device
 from protocol.can.objects import Control, Index, Status
 from protocol.can.sdo import AbortCode
 
@@ -42,7 +42,7 @@ def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
 
 
 class Host(Protocol):
-    """What a device application needs from the bench it runs on (``SimulatedBench``)."""
+    """What a device application needs from the simulated robot it runs on (``SimulatedRobot``)."""
 
     sim: Simulator
     """The plant: physics, firmware boards and scenario, stepped one control period at a time."""

@@ -1,4 +1,4 @@
-"""Scenarios (tasks): the props, initial state, bench actions and ground truth of an episode."""
+"""Scenarios (tasks): the props, initial state, test-bench actions and ground truth of an episode."""
 from .base import Scenario, balanced_qpos
 from .bracing import Bracing
 from .lifting import Lifting

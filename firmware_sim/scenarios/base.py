@@ -1,5 +1,5 @@
 """What a scenario (dm_control's "task") supplies: the props around the robot, the initial
-state, the per-step bench actions (an impact, a grasp that can break) and ground truth.
+state, the per-step test-bench actions (an impact, a grasp that can break) and ground truth.
 
 Life cycle, driven by the Simulator:
 - ``build_spec()`` once: the robot MJCF plus the scenario's props, compiled by the simulator;

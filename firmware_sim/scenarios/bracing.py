@@ -4,7 +4,7 @@
   (the firmware holds the current pose at reset; the agent sets stiffness and setpoints).
 - Impact momentum p ~ N(14, 2^2) N s from the seed, clipped to [6, 22] (4 sigma), recorded.
 - At ``impact_time`` (0.25 s after reset) or on :meth:`trigger_impact`, whichever comes first,
-  the bench places the pendulum so that its bob, at the bottom of its swing, touches the
+  the test bench places the pendulum so that its bob, at the bottom of its swing, touches the
   torso's back at 0.50 m height, and launches it from ``launch_angle`` behind with the speed
   that gives |p| = m v exactly at the bottom.
 - Wheel chocks (5 cm blocks 3 mm in front of both wheels, pendulum.xml) keep the robot from
@@ -13,7 +13,7 @@
   the chocks only the wheels' reaction torque can pitch the body back, which is far too
   little, so the robot falls forward onto its arms whatever the wheels do (checked with LQR
   gains over a grid of weights, up to the 10 A wheel current limit).
-- 0.15 s after the launch the bench catches the pendulum (its collisions are switched off),
+- 0.15 s after the launch the test bench catches the pendulum (its collisions are switched off),
   so it strikes once.
 """
 from __future__ import annotations

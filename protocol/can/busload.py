@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.can.bench import BENCH, HEARTBEAT_PERIOD_MS, Device
+from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device
 from protocol.can.pdo import PdoSpec, cyclic_pdos
 
 BUDGET_PERCENT = 50.0
@@ -60,7 +60,7 @@ def _pdo_item(p: PdoSpec) -> LoadItem:
 
 
 def bus_load(rate_hz: float = 200.0, bitrate: int = 1_000_000,
-             devices: tuple[Device, ...] = BENCH) -> BusLoad:
+             devices: tuple[Device, ...] = DEVICES) -> BusLoad:
     if not rate_hz > 0 or bitrate <= 0:
         raise ValueError("rate and bitrate must be positive")
     items = [LoadItem("SYNC (0x080)", 0, 1.0)]

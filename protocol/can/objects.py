@@ -1,4 +1,4 @@
-"""Named object-dictionary entries, their scaling, and the bit/code tables of the bench.
+"""Named object-dictionary entries, their scaling, and the bit/code tables of the devices.
 
 Raw values on the bus are integers; ``Scale`` converts between SI units and counts.
 ``to_raw`` saturates at the integer type's range (a sensor that saturates reports its limit,
@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 
 class Index(enum.IntEnum):
-    """Object indexes (CiA 301 communication area and the bench's manufacturer area)."""
+    """Object indexes (CiA 301 communication area and the devices' manufacturer area)."""
     DEVICE_TYPE = 0x1000
     ERROR_REGISTER = 0x1001
     COB_ID_SYNC = 0x1005
@@ -219,7 +219,7 @@ OBJECTS: dict[int, ObjectSpec] = {o.index: o for o in (
                meaning="1: wheels passive"),
     ObjectSpec(Index.BOTTLE_COM_HEIGHT, "Bottle COM height", _T.INT16, "ro", factor=1e-3, unit="m"),
 )}
-"""Every manufacturer object of the bench by index: the one source of its name, data type,
+"""Every manufacturer object by index: the one source of its name, data type,
 access, PDO mappability, raw limits and scaling. ``tools/gen_eds.py`` writes the EDS files from
 it; agent and simulator scale with the ``Scale`` constants below, taken from it."""
 

@@ -1,4 +1,4 @@
-"""PDO maps of the bench, read from the EDS files (never restated in code).
+"""PDO maps of the devices, read from the EDS files (never restated in code).
 
 ``pdo_maps(device)`` gives every RPDO/TPDO of a device as ``PdoSpec``: its COB-ID,
 transmission type and mapped entries (index, sub-index, bit length, name). The agent, the
@@ -15,7 +15,7 @@ from typing import Literal
 
 from canopen.objectdictionary import ODRecord, ODVariable
 
-from protocol.can.bench import BENCH, Device, device, object_dictionary
+from protocol.can.devices import DEVICES, Device, device, object_dictionary
 
 Direction = Literal["tpdo", "rpdo"]
 
@@ -105,6 +105,6 @@ def pdo_maps(dev: Device) -> tuple[PdoSpec, ...]:
     return tuple(specs)
 
 
-def cyclic_pdos(devices: tuple[Device, ...] = BENCH) -> tuple[PdoSpec, ...]:
+def cyclic_pdos(devices: tuple[Device, ...] = DEVICES) -> tuple[PdoSpec, ...]:
     """Every synchronous PDO of the given devices (the 200 Hz schedule, without SYNC)."""
     return tuple(p for d in devices for p in pdo_maps(d) if p.synchronous)

@@ -1,6 +1,6 @@
 """Real-time scheduling of a process on the SYNC loop's path (both sides of the bus).
 
-A real bench's balance loop runs at 200 Hz: a SYNC delayed past the 5 ms period is a missed
+A real robot's balance loop runs at 200 Hz: a SYNC delayed past the 5 ms period is a missed
 deadline. On a loaded Linux machine most of that delay is waiting for a core, so both the
 agent (SYNC producer) and a real-time simulator ask for ``SCHED_FIFO`` at the same priority
 for every thread of their process - Python's and the transport's own (threads created later

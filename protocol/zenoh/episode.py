@@ -30,7 +30,7 @@ STATUSES: tuple[str, ...] = (
     "fault_heartbeat",  # a controller or the agent lost the other's heartbeat
     "fault_pdo_timeout",  # a synchronous TPDO did not arrive in time
     "fault_emcy",  # an EMCY that is not a task outcome (e.g. driver fault)
-    "fault_simulator",  # the simulated bench failed (simulation diverged, bench node error)
+    "fault_simulator",  # the simulated robot failed (simulation diverged, node error)
     "aborted",  # stopped on request
 )
 #: Task-outcome flags (they are costs/observations, not faults: an "ok" episode may have them).

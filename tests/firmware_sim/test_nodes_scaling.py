@@ -7,9 +7,9 @@ import uuid
 
 import pytest
 
-from firmware_sim.nodes.simbench import SimulatedBench
+from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import Master
-from protocol.can.bench import ARM_LEFT, BENCH, IMU, TESTBENCH, TORSO, WHEELS
+from protocol.can.devices import ARM_LEFT, DEVICES, IMU, TESTBENCH, TORSO, WHEELS
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import OBJECTS, Index
 
@@ -18,20 +18,20 @@ pytestmark = pytest.mark.timeout(120)
 
 @pytest.fixture(scope="module")
 def rig():
-    """A simulated bench half a second into a bracing episode (impact released, torso turning),
+    """A simulated robot half a second into a bracing episode (impact released, torso turning),
     and the test's SDO client with the EDS object dictionaries."""
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
-    bench = SimulatedBench(config)
-    master = Master(config, BENCH)
-    with bench.lock:
-        bench.sim.reset("bracing", 5)
-        bench.sim.trigger_impact()
-        bench.sim.controller(TORSO.name).set_setpoint(TORSO.joints[0], 0.3)  # the torso moves too
+    robot = SimulatedRobot(config)
+    master = Master(config, DEVICES)
+    with robot.lock:
+        robot.sim.reset("bracing", 5)
+        robot.sim.trigger_impact()
+        robot.sim.controller(TORSO.name).set_setpoint(TORSO.joints[0], 0.3)  # the torso moves too
         for _ in range(100):
-            bench.sim.step()
-    yield bench, master.nodes
+            robot.sim.step()
+    yield robot, master.nodes
     master.close()
-    bench.close()
+    robot.close()
 
 
 def _within_a_count(read: float, truth: float, index: int) -> None:
@@ -40,11 +40,11 @@ def _within_a_count(read: float, truth: float, index: int) -> None:
 
 @pytest.mark.parametrize("device", [WHEELS, TORSO, ARM_LEFT], ids=lambda d: d.name)
 def test_axis_telemetry_reads_as_the_simulated_state(rig, device):
-    bench, nodes = rig
+    robot, nodes = rig
     sdo = nodes[device.name].sdo
     counts = []
     for sub, joint in enumerate(device.joints, start=1):
-        axis = bench.sim.axis(joint)
+        axis = robot.sim.axis(joint)
         for index, truth in ((Index.POSITION, axis.position), (Index.VELOCITY, axis.velocity),
                              (Index.CURRENT, axis.current), (Index.VOLTAGE, axis.voltage)):
             _within_a_count(sdo[index][sub].phys, truth, index)
@@ -53,8 +53,8 @@ def test_axis_telemetry_reads_as_the_simulated_state(rig, device):
 
 
 def test_imu_reads_as_the_simulated_imu(rig):
-    bench, nodes = rig
-    sdo, imu = nodes[IMU.name].sdo, bench.sim.imu()
+    robot, nodes = rig
+    sdo, imu = nodes[IMU.name].sdo, robot.sim.imu()
     for index, truth in ((Index.PITCH, imu.pitch), (Index.PITCH_RATE, imu.pitch_rate),
                          (Index.PITCH_ACCELERATION, imu.pitch_acc), (Index.ACCELERATION_X, imu.acc_x),
                          (Index.ACCELERATION_Z, imu.acc_z)):
@@ -62,8 +62,8 @@ def test_imu_reads_as_the_simulated_imu(rig):
 
 
 def test_ground_truth_reads_as_the_simulator_truth(rig):
-    bench, nodes = rig
-    sdo, truth = nodes[TESTBENCH.name].sdo, bench.sim.truth
+    robot, nodes = rig
+    sdo, truth = nodes[TESTBENCH.name].sdo, robot.sim.truth
     assert truth.impact_momentum > 1.0 and truth.sim_time > 0.1
     _within_a_count(sdo[Index.IMPACT_MOMENTUM].phys, truth.impact_momentum, Index.IMPACT_MOMENTUM)
     _within_a_count(sdo[Index.SIM_TIME].phys, truth.sim_time, Index.SIM_TIME)
@@ -72,8 +72,8 @@ def test_ground_truth_reads_as_the_simulator_truth(rig):
 
 
 def test_configuration_in_si_reaches_the_firmware(rig):
-    bench, nodes = rig
-    sdo, board = nodes[ARM_LEFT.name].sdo, bench.sim.controller(ARM_LEFT.name)
+    robot, nodes = rig
+    sdo, board = nodes[ARM_LEFT.name].sdo, robot.sim.controller(ARM_LEFT.name)
     shoulder, elbow = ARM_LEFT.joints
     sdo[Index.STIFFNESS][1].phys = 123.45
     sdo[Index.DAMPING][2].phys = 0.789

@@ -10,7 +10,7 @@ import pytest
 
 from ersac_hil.canbus import LoopbackHub
 from helpers.waiting import wait_until
-from protocol.can.bench import BENCH, TESTBENCH, object_dictionary
+from protocol.can.devices import DEVICES, TESTBENCH, object_dictionary
 from protocol.can.busconfig import open_network
 
 pytestmark = pytest.mark.timeout(60)
@@ -21,14 +21,14 @@ def test_sim_process_serves_the_bench_and_stops_on_signal(sig):
     with LoopbackHub() as hub:
         net = open_network(hub.bus_config)
         booted: set[int] = set()
-        for d in BENCH:
+        for d in DEVICES:
             net.subscribe(0x700 + d.node_id, lambda cid, data, ts: booted.add(cid & 0x7F))
         proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "sim", "--bus-interface", "remote",
                                  "--bus-channel", hub.url, "--seed", "3"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert proc.stdout.readline().startswith("simulator: 6 nodes on remote:")
-            wait_until(lambda: booted == {d.node_id for d in BENCH}, what="the boot-up of every node")
+            wait_until(lambda: booted == {d.node_id for d in DEVICES}, what="the boot-up of every node")
             tb = net.add_node(TESTBENCH.node_id, object_dictionary(TESTBENCH))
             assert tb.sdo[0x1018][2].raw == object_dictionary(TESTBENCH)[0x1018][2].default
             proc.send_signal(sig)

@@ -4,7 +4,7 @@
 declare fixtures and are never imported.
 
 * ``waiting``         - ``wait_until``: poll a condition up to a deadline, fail the test after it
-* ``can_nodes``       - the reference bench (static CiA 301 nodes from the EDS files), a test-side
+* ``can_nodes``       - the reference nodes (static CiA 301 nodes from the EDS files), a test-side
                         CANopen master, a frame counter, the SDO barrier, actions at a SYNC
 * ``plant``           - balancing the simulated plant without the agent (scenario tests)
 * ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)

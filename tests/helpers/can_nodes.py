@@ -1,6 +1,6 @@
 """The test's side of a CAN bus: reference nodes, a master, frame logs, barriers.
 
-* ``ReferenceBench`` - every bench device as a ``SlaveNode`` with the static application (what
+* ``ReferenceNodes`` - every device as a ``SlaveNode`` with the static application (what
   the EDS files say and nothing more), on its own network.
 * ``Master`` - a canopen network with a ``RemoteNode`` per device, built from the EDS files.
 * ``FrameLog`` - every frame of some COB-IDs in arrival order; wait for a condition on them;
@@ -22,7 +22,7 @@ from canopen.nmt import NMT_STATES
 
 from firmware_sim.nodes import SlaveNode
 from protocol.can import cobid
-from protocol.can.bench import BENCH, Device, object_dictionary
+from protocol.can.devices import DEVICES, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network
 
 from helpers.waiting import DEFAULT_TIMEOUT_S
@@ -30,10 +30,10 @@ from helpers.waiting import DEFAULT_TIMEOUT_S
 Frame = tuple[int, bytes]
 
 
-class ReferenceBench:
+class ReferenceNodes:
     """Every device of ``devices`` as a ``SlaveNode`` with the static application."""
 
-    def __init__(self, bus_config: BusConfig, devices: tuple[Device, ...] = BENCH) -> None:
+    def __init__(self, bus_config: BusConfig, devices: tuple[Device, ...] = DEVICES) -> None:
         self.devices = tuple(devices)
         self.network = open_network(bus_config)
         self.nodes = {d.name: SlaveNode(d) for d in self.devices}
@@ -142,8 +142,8 @@ def sdo_barrier(nodes: Iterable[canopen.RemoteNode]) -> None:
 
 def at_sync(network: canopen.Network, when: Callable[[], bool], action: Callable[[], None]) -> threading.Event:
     """Call ``action`` once, from the SYNC dispatch of ``network``, at the first SYNC after which
-    ``when()`` holds. Subscribers run in subscription order, so on a simulated bench's network
-    this runs right after the bench stepped its physics for that SYNC. Returns an event set
+    ``when()`` holds. Subscribers run in subscription order, so on a simulated robot's network
+    this runs right after the robot stepped its physics for that SYNC. Returns an event set
     once the action ran."""
     done = threading.Event()
 

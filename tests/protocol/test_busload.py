@@ -17,7 +17,7 @@ def test_frame_bits_worst_case_stuffing():
 def test_cyclic_schedule_within_half_the_bus_at_200hz():
     load = bus_load(200.0, 1_000_000)
     assert load.within_budget, f"{load.percent:.1f} %"
-    # every synchronous PDO of the bench is in the budget, plus SYNC and heartbeats
+    # every synchronous PDO of the devices is in the budget, plus SYNC and heartbeats
     assert sum(1 for i in load.items if "PDO" in i.name) == 17
 
 

@@ -1,6 +1,6 @@
-"""CiA 301 conformance of every node of the bench, over every available CAN backend.
+"""CiA 301 conformance of every node of the robot, over every available CAN backend.
 
-Written against the ``bench``/``master`` fixtures only (tests/protocol/conftest.py), so the
+Written against the ``nodes``/``master`` fixtures only (tests/protocol/conftest.py), so the
 same tests run against the reference nodes and the firmware simulator. Every wait is on frames
 (or an SDO barrier) with a deadline; how fast the nodes react is measured by bench/fault_latency.py.
 """
@@ -12,7 +12,7 @@ from canopen.sdo import SdoAbortedError
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from helpers.can_nodes import FrameLog, heartbeats, reported, sdo_barrier, set_state
 from protocol.can import cobid
-from protocol.can.bench import object_dictionary
+from protocol.can.devices import object_dictionary
 from protocol.can.objects import EmcyCode, Index, Status
 from protocol.can.pdo import pdo_maps
 from protocol.can.sdo import RANGE_ABORTS, AbortCode

@@ -6,7 +6,7 @@ from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary.datatypes import SIGNED_TYPES
 
 from protocol.can import objects
-from protocol.can.bench import ARM_LEFT, BENCH, IMU, TESTBENCH, WHEELS, object_dictionary
+from protocol.can.devices import ARM_LEFT, DEVICES, IMU, TESTBENCH, WHEELS, object_dictionary
 from protocol.can.objects import OBJECTS, WHEEL_POSITION_OBJECT, Index
 from protocol.can.pdo import pdo_maps
 
@@ -20,14 +20,14 @@ def test_committed_eds_files_match_generator():
 
 
 def test_every_device_has_identity_heartbeat_and_status():
-    for dev in BENCH:
+    for dev in DEVICES:
         od = object_dictionary(dev)
         for index in (0x1000, 0x1001, 0x1016, 0x1017, 0x1018, 0x2010):
             assert index in od, (dev.name, hex(index))
 
 
 def test_pdo_entries_are_mappable_and_fit_a_frame():
-    for dev in BENCH:
+    for dev in DEVICES:
         od = object_dictionary(dev)
         for p in pdo_maps(dev):
             assert p.length <= 8
@@ -42,9 +42,9 @@ def test_pdo_entries_are_mappable_and_fit_a_frame():
 
 
 def test_cob_ids_unique_on_the_bench():
-    cobs = [p.cob_id for d in BENCH for p in pdo_maps(d)]
+    cobs = [p.cob_id for d in DEVICES for p in pdo_maps(d)]
     assert len(cobs) == len(set(cobs))
-    assert len({d.node_id for d in BENCH}) == len(BENCH)
+    assert len({d.node_id for d in DEVICES}) == len(DEVICES)
 
 
 def test_protocol_doc_is_current():
@@ -75,7 +75,7 @@ def _spec_of(index):
 def test_eds_objects_carry_the_object_table():
     """Type, access, limits and scaling in every EDS are the ones ``protocol.can.objects`` states."""
     seen = set()
-    for dev in BENCH:
+    for dev in DEVICES:
         for index, var in _manufacturer_variables(dev):
             spec = _spec_of(index)
             seen.add(spec.index)
@@ -90,7 +90,7 @@ def test_eds_objects_carry_the_object_table():
 
 def test_scales_match_the_eds_factor_and_type():
     """Every ``Scale`` constant equals the EDS Factor and integer range of its object."""
-    arm, wheels, bench = (object_dictionary(d) for d in (ARM_LEFT, WHEELS, TESTBENCH))
+    arm, wheels, testbench = (object_dictionary(d) for d in (ARM_LEFT, WHEELS, TESTBENCH))
     imu = object_dictionary(IMU)
     pairs = [(objects.POSITION, arm[Index.POSITION][1]), (objects.WHEEL_POSITION, wheels[Index.POSITION][1]),
              (objects.VELOCITY, arm[Index.VELOCITY][1]), (objects.CURRENT, arm[Index.CURRENT][1]),
@@ -100,9 +100,9 @@ def test_scales_match_the_eds_factor_and_type():
              (objects.VELOCITY_LIMIT, arm[Index.VELOCITY_LIMIT][1]),
              (objects.KNOT_TIME, arm[Index.SPLINE_KNOT_TIME][1]), (objects.PITCH, imu[Index.PITCH]),
              (objects.PITCH_RATE, imu[Index.PITCH_RATE]), (objects.PITCH_ACCELERATION, imu[Index.PITCH_ACCELERATION]),
-             (objects.ACCELERATION, imu[Index.ACCELERATION_X]), (objects.MOMENTUM, bench[Index.IMPACT_MOMENTUM]),
-             (objects.TENSION, bench[Index.CABLE_TENSION][1]), (objects.HEIGHT, bench[Index.BOTTLE_HEIGHT]),
-             (objects.SIM_TIME, bench[Index.SIM_TIME])]
+             (objects.ACCELERATION, imu[Index.ACCELERATION_X]), (objects.MOMENTUM, testbench[Index.IMPACT_MOMENTUM]),
+             (objects.TENSION, testbench[Index.CABLE_TENSION][1]), (objects.HEIGHT, testbench[Index.BOTTLE_HEIGHT]),
+             (objects.SIM_TIME, testbench[Index.SIM_TIME])]
     for scale, var in pairs:
         assert (scale.factor, scale.unit) == (var.factor, var.unit), var.name
         assert scale.bits == len(var) and scale.signed == (var.data_type in SIGNED_TYPES), var.name

@@ -1,7 +1,7 @@
 """What a task is to the episode runner (after dm_control's ``Task``).
 
 A ``Task`` turns theta into a plan (pure: validated before anything moves), configures the
-bench for it, gives the arm commands of every cycle, says when the episode is over, and turns
+robot for it, gives the arm commands of every cycle, says when the episode is over, and turns
 the episode's telemetry into the contract's cost terms. The runner owns everything that is the
 same for every task: scenario reset, NMT, the SYNC loop with the LQR balance, faults, EMCY and
 status flags, the result. It never looks at a task's name.

@@ -24,7 +24,7 @@ from ersac_hil.agent.policies import ArmImpedance, BracingPolicy
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, Task
 from ersac_hil.agent.telemetry import Commands, Trace
 from protocol.can import objects as obj
-from protocol.can.bench import TESTBENCH
+from protocol.can.devices import TESTBENCH
 from protocol.can.objects import Index, Scenario
 
 
@@ -66,7 +66,7 @@ class BracingTask(Task[BracingSetup]):
                               "arm_power": costs.arm_power(trace)})
 
     def ground_truth(self, bus: AgentBus, flags: obj.Status) -> dict[str, float]:
-        out = {"bench_impact_momentum_ns": float(bus.read(TESTBENCH, Index.IMPACT_MOMENTUM, 0, obj.MOMENTUM))}
+        out = {"truth_impact_momentum_ns": float(bus.read(TESTBENCH, Index.IMPACT_MOMENTUM, 0, obj.MOMENTUM))}
         for sub, side in ((1, "left"), (2, "right")):
-            out[f"bench_cable_tension_{side}_n"] = float(bus.read(TESTBENCH, Index.CABLE_TENSION, sub, obj.TENSION))
+            out[f"truth_cable_tension_{side}_n"] = float(bus.read(TESTBENCH, Index.CABLE_TENSION, sub, obj.TENSION))
         return out

@@ -49,7 +49,7 @@ from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, EndCondition, Task
 from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can import objects as obj
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, TESTBENCH
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, TESTBENCH
 from protocol.can.objects import Control, EmcyCode, Index, Scenario
 
 
@@ -154,6 +154,6 @@ class LiftingTask(Task[LiftingSetup]):
         out: dict[str, float] = {}
         raw = int(bus.read(TESTBENCH, Index.BOTTLE_HEIGHT))
         if raw != obj.HEIGHT.raw_min:
-            out["bench_bottle_height_m"] = obj.HEIGHT.from_raw(raw)
-        out["bench_bottle_dropped"] = float(bool(flags & obj.Status.BOTTLE_DROPPED))
+            out["truth_bottle_height_m"] = obj.HEIGHT.from_raw(raw)
+        out["truth_bottle_dropped"] = float(bool(flags & obj.Status.BOTTLE_DROPPED))
         return out

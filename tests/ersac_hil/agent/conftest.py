@@ -1,40 +1,40 @@
-"""Fixtures of the agent's tests: the reference bench (static CiA 301 nodes from the EDS files)
+"""Fixtures of the agent's tests: the reference nodes (static CiA 301 nodes from the EDS files)
 on every available CAN backend, and an ``AgentBus`` connected to it."""
 from __future__ import annotations
 
 import pytest
 
 from ersac_hil.agent.bus import AgentBus
-from helpers.can_nodes import ReferenceBench
-from protocol.can.bench import BENCH
+from helpers.can_nodes import ReferenceNodes
+from protocol.can.devices import DEVICES
 
 
 @pytest.fixture
-def make_reference_bench():
+def make_reference_nodes():
     """Factory for benches on buses a test manages itself; closes them at the end."""
     made = []
 
-    def make(bus_config, devices=BENCH):
-        made.append(ReferenceBench(bus_config, devices))
+    def make(bus_config, devices=DEVICES):
+        made.append(ReferenceNodes(bus_config, devices))
         return made[-1]
 
     yield make
-    for bench in made:
+    for nodes in made:
         try:
-            bench.close()
+            nodes.close()
         except Exception:
             pass
 
 
 @pytest.fixture
-def reference_bench(can_backend):
-    bench = ReferenceBench(can_backend)
-    yield bench
-    bench.close()
+def reference_nodes(can_backend):
+    nodes = ReferenceNodes(can_backend)
+    yield nodes
+    nodes.close()
 
 
 @pytest.fixture
-def agent_bus(reference_bench, can_backend):
+def agent_bus(reference_nodes, can_backend):
     with AgentBus(can_backend) as bus:
         bus.wait_for_nodes()
         yield bus

@@ -15,7 +15,7 @@ from helpers.can_nodes import heartbeats
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can import objects as obj
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, BENCH, IMU, TORSO, WHEELS
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, DEVICES, IMU, TORSO, WHEELS
 from protocol.can.objects import Control, EmcyCode, Index, Status
 from protocol.can.sdo import AbortCode
 
@@ -25,7 +25,7 @@ i16 = st.integers(-32768, 32767)
 
 
 def test_nodes_found_and_started(agent_bus):
-    agent_bus.wait_for_nodes(BENCH)  # the fixture waited for the cyclic nodes only
+    agent_bus.wait_for_nodes(DEVICES)  # the fixture waited for the cyclic nodes only
     assert set(agent_bus.nmt_states()) >= {"wheels", "imu", "testbench"}
     assert all(s == "PRE-OPERATIONAL" for s in agent_bus.nmt_states().values())
     agent_bus.nmt_start()
@@ -38,10 +38,10 @@ def test_nodes_found_and_started(agent_bus):
 @given(axes=st.lists(st.tuples(i16, i16, i16, i16), min_size=7, max_size=7),
        wheel_pos=st.tuples(st.integers(-2**31, 2**31 - 1), st.integers(-2**31, 2**31 - 1)),
        imu=st.tuples(i16, i16, i16, i16, i16), status=st.integers(0, 0x7FF))
-def test_telemetry_decoded_in_si(agent_bus, reference_bench, axes, wheel_pos, imu, status):
+def test_telemetry_decoded_in_si(agent_bus, reference_nodes, axes, wheel_pos, imu, status):
     agent_bus.nmt_start()  # and one cycle: the static nodes set bit 0 on the transition
     agent_bus.cycle()
-    nodes = reference_bench.nodes
+    nodes = reference_nodes.nodes
     for j, (dev, sub) in enumerate([(WHEELS, 1), (WHEELS, 2), (TORSO, 1), (ARM_LEFT, 1),
                                     (ARM_LEFT, 2), (ARM_RIGHT, 1), (ARM_RIGHT, 2)]):
         pos, vel, cur, volt = axes[j]
@@ -66,12 +66,12 @@ def test_telemetry_decoded_in_si(agent_bus, reference_bench, axes, wheel_pos, im
     assert tel.status_of("imu") == Status(status)
 
 
-def test_commands_take_effect_at_sync(agent_bus, reference_bench):
+def test_commands_take_effect_at_sync(agent_bus, reference_nodes):
     agent_bus.nmt_start()
     cmd = Commands(wheel_torque=(1.234, -0.5), torso_position=0.25, arm_left=(0.5, 1.0),
                    arm_right=(-0.3, 0.2), arm_control=Control.ENABLE | Control.START_SPLINE)
     agent_bus.cycle(cmd)
-    nodes = reference_bench.nodes
+    nodes = reference_nodes.nodes
     assert nodes["wheels"].value(Index.TORQUE_COMMAND, 1) == 1234
     assert nodes["wheels"].value(Index.TORQUE_COMMAND, 2) == -500
     assert nodes["torso"].value(Index.POSITION_SETPOINT, 1) == 2500
@@ -92,19 +92,19 @@ def test_no_telemetry_when_preoperational(agent_bus):
     assert "imu" in str(exc.value) and exc.value.status == "fault_pdo_timeout"
 
 
-def test_missing_tpdo_is_a_timeout_naming_the_node(agent_bus, reference_bench):
+def test_missing_tpdo_is_a_timeout_naming_the_node(agent_bus, reference_nodes):
     agent_bus.nmt_start()
     agent_bus.cycle()
-    reference_bench.remove("imu")
+    reference_nodes.remove("imu")
     with pytest.raises(PdoTimeout) as exc:
         agent_bus.cycle()
     assert exc.value.missing and all(m.startswith("imu:") for m in exc.value.missing)
 
 
-def test_silent_node_is_heartbeat_lost(agent_bus, reference_bench):
+def test_silent_node_is_heartbeat_lost(agent_bus, reference_nodes):
     agent_bus.nmt_start()
     agent_bus.cycle()
-    reference_bench.remove("arm_right")
+    reference_nodes.remove("arm_right")
     wait_until(lambda: not agent_bus.present("arm_right"), what="arm_right declared absent")
     assert agent_bus.heartbeat_ages()["arm_right"] > agent_bus.timing.heartbeat_timeout_s
     wait_until(lambda: agent_bus.present("arm_left"), what="arm_left present")
@@ -113,10 +113,10 @@ def test_silent_node_is_heartbeat_lost(agent_bus, reference_bench):
     assert exc.value.device == "arm_right" and exc.value.status == "fault_heartbeat"
 
 
-def test_emcy_collected_with_device_and_cycle(agent_bus, reference_bench):
+def test_emcy_collected_with_device_and_cycle(agent_bus, reference_nodes):
     agent_bus.nmt_start()
     agent_bus.cycle()
-    reference_bench.nodes["arm_left"].emergency(EmcyCode.CABLE_BROKEN)
+    reference_nodes.nodes["arm_left"].emergency(EmcyCode.CABLE_BROKEN)
     wait_until(lambda: agent_bus.emcy_count, what="the EMCY")
     (event,) = agent_bus.emcy_events()
     assert (event.device, event.code, event.cycle) == ("arm_left", EmcyCode.CABLE_BROKEN, 1)
@@ -151,7 +151,7 @@ def test_sdo_write_read_with_scaling_and_typed_refusal(agent_bus):
     assert agent_bus.read(ARM_LEFT, Index.STIFFNESS, 1, obj.STIFFNESS) != 600.0
 
 
-def test_realtime_mode_paces_sync_by_the_wall_clock(reference_bench, can_backend):
+def test_realtime_mode_paces_sync_by_the_wall_clock(reference_nodes, can_backend):
     timing = BusTiming(period_s=0.005, realtime=True)
     with AgentBus(can_backend, timing=timing) as bus:
         bus.wait_for_nodes()
@@ -174,11 +174,11 @@ def test_missing_nodes_reported(can_backend):
     assert "wheels" in exc.value.devices and exc.value.status == "fault_simulator"
 
 
-def test_bench_gone_mid_run_is_a_fault(agent_bus, reference_bench):
+def test_bench_gone_mid_run_is_a_fault(agent_bus, reference_nodes):
     agent_bus.nmt_start()
     agent_bus.cycle()
-    for name in list(reference_bench.nodes):
-        reference_bench.remove(name)
+    for name in list(reference_nodes.nodes):
+        reference_nodes.remove(name)
     with pytest.raises(AgentFault) as exc:
         for _ in range(1000):
             agent_bus.cycle()

@@ -12,7 +12,7 @@ from canopen.objectdictionary import ODVariable
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.configure import ARMS, apply_impedance, download_spline
 from ersac_hil.agent.policies import ArmImpedance, Spline
-from protocol.can.bench import ARM_LEFT, object_dictionary
+from protocol.can.devices import ARM_LEFT, object_dictionary
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Index, spline_position_index, spline_velocity_index
 
@@ -20,13 +20,13 @@ pytestmark = pytest.mark.timeout(60)
 
 
 @pytest.fixture
-def configured(make_reference_bench):
+def configured(make_reference_nodes):
     """An agent bus and the reference controllers of both arms on a fresh virtual channel."""
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
-    bench = make_reference_bench(config, ARMS)
+    nodes = make_reference_nodes(config, ARMS)
     with AgentBus(config, devices=ARMS) as bus:
         bus.wait_for_nodes(ARMS)
-        yield bus, bench
+        yield bus, nodes
 
 
 def _phys(node, index: int, sub: int) -> float:
@@ -37,21 +37,21 @@ def _phys(node, index: int, sub: int) -> float:
 
 
 def test_impedance_registers_hold_the_si_values(configured):
-    bus, bench = configured
+    bus, nodes = configured
     apply_impedance(bus, ArmImpedance(stiffness=(123.45, 67.89), damping=(1.234, 0.679)))
     for arm in ARMS:
-        node = bench.nodes[arm.name]
+        node = nodes.nodes[arm.name]
         assert [_phys(node, Index.STIFFNESS, s) for s in (1, 2)] == pytest.approx([123.45, 67.89])
         assert [_phys(node, Index.DAMPING, s) for s in (1, 2)] == pytest.approx([1.234, 0.679])
 
 
 def test_spline_registers_hold_the_si_values(configured):
-    bus, bench = configured
+    bus, nodes = configured
     spline = Spline(times=np.array([0.0, 0.75, 1.5]),
                     positions=np.array([[0.1, 0.2], [1.2, 1.5], [2.0, 0.4]]),
                     velocities=np.array([[0.0, 0.0], [1.25, -0.5], [0.0, 0.0]]))
     download_spline(bus, ARM_LEFT, spline)
-    node = bench.nodes[ARM_LEFT.name]
+    node = nodes.nodes[ARM_LEFT.name]
     assert int(node.value(Index.SPLINE_KNOT_COUNT)) == 3
     for k in range(1, 4):
         assert _phys(node, Index.SPLINE_KNOT_TIME, k) == pytest.approx(spline.times[k - 1])

@@ -1,4 +1,4 @@
-"""Episodes of the real agent against the real simulated bench (in-process, virtual bus)."""
+"""Episodes of the real agent against the real simulated robot (in-process, virtual bus)."""
 from __future__ import annotations
 
 import uuid
@@ -12,7 +12,7 @@ from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
 from ersac_hil.agent.tasks import BracingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
-from firmware_sim.nodes.simbench import SimulatedBench
+from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import at_sync
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Scenario
@@ -29,12 +29,12 @@ def new_config() -> BusConfig:
 @pytest.fixture(scope="module")
 def rig():
     config = new_config()
-    bench = SimulatedBench(config)
+    robot = SimulatedRobot(config)
     bus = AgentBus(config).open()
     bus.wait_for_nodes()
-    yield bench, bus, EpisodeRunner(bus)
+    yield robot, bus, EpisodeRunner(bus)
     bus.close()
-    bench.close()
+    robot.close()
 
 
 def run(runner, task, theta, seed=0, episode_id="ep"):
@@ -50,14 +50,14 @@ def test_bracing_stiffness_changes_the_cost_and_stiff_arms_break_cables(rig):
         assert all(set(r.cost_terms) == {"damage", "body_acc_sq", "arm_power"} for r in rs)
     soft = [r.total_cost for r in results[0.0]]
     stiff = [r.total_cost for r in results[1.0]]
-    # soft arms hold the body deep (pitch beyond the bench's 0.8 rad fall mark) on deflected,
+    # soft arms hold the body deep (pitch beyond the 0.8 rad fall mark) on deflected,
     # costly arms: costlier than stiff arms, cable or not
     assert all(r.failed("fallen") for r in results[0.0])
     assert np.mean(soft) > np.mean(stiff) + 20.0
     assert any(r.cost_terms["damage"] == 1.0 and r.failed("hardware_damage") for r in results[1.0])
     assert not any(r.cost_terms["damage"] for r in results[0.0])
     damaged = [r for r in results[1.0] if r.cost_terms["damage"]]
-    assert all(r.telemetry["bench_damaged"] == 1.0 for r in damaged)  # agrees with ground truth
+    assert all(r.telemetry["truth_damaged"] == 1.0 for r in damaged)  # agrees with ground truth
 
 
 def test_same_seed_same_theta_same_cost(rig):
@@ -72,19 +72,19 @@ def test_sensible_spline_lifts_the_bottle_and_ends_at_the_goal(rig):
     r = run(runner, "lifting", SENSIBLE_LIFT, seed=0)
     assert r.status == "ok" and not r.failed("bottle_dropped") and not r.failed("fallen")
     assert r.telemetry["final_bottle_height_m"] == pytest.approx(1.2, abs=0.05)
-    assert r.telemetry["bench_bottle_height_m"] == pytest.approx(1.2, abs=0.05)  # FK vs truth
+    assert r.telemetry["truth_bottle_height_m"] == pytest.approx(1.2, abs=0.05)  # FK vs truth
     assert r.duration_s < 6.0 and "goal reached" in r.detail
     assert set(r.cost_terms) == {"x_wheel_sq", "xdot_wheel_sq", "alpha_sq", "alphadot_sq",
                                  "h_error_sq", "power"}
 
 
 def test_a_task_the_agent_does_not_serve_is_refused_before_anything_moves(rig):
-    bench, bus, _ = rig
+    robot, bus, _ = rig
     runner = EpisodeRunner(bus, EpisodeConfig(tasks={"bracing": BracingTask()}))
-    t0 = bench.sim.sim_time
+    t0 = robot.sim.sim_time
     with pytest.raises(UnknownTask, match="not served") as info:
         runner.plan(EpisodeRequest("ep", "lifting", SENSIBLE_LIFT, 0))
-    assert info.value.code == "unknown_task" and bench.sim.sim_time == t0
+    assert info.value.code == "unknown_task" and robot.sim.sim_time == t0
     assert runner.plan(EpisodeRequest("ep", "bracing", (0.3,), 0)).task.name == "bracing"
 
 
@@ -99,7 +99,7 @@ def test_a_dropped_bottle_is_no_longer_balanced_for(rig):
 
 
 def test_balances_ten_seconds_over_can_without_arm_motion(rig):
-    bench, bus, runner = rig
+    robot, bus, runner = rig
     bus.nmt_preop()
     reset_scenario(bus, Scenario.IDLE, 3)
     pose = (0.0, 1.2)
@@ -108,10 +108,10 @@ def test_balances_ten_seconds_over_can_without_arm_motion(rig):
     try:
         tel = bus.cycle(Commands(arm_left=pose, arm_right=pose))
         ctl.start(tel)
-        x0 = bench.sim.truth.base_x
+        x0 = robot.sim.truth.base_x
         for _ in range(2000):
             tel = bus.cycle(Commands(wheel_torque=ctl.torque(tel), arm_left=pose, arm_right=pose))
-        truth = bench.sim.truth
+        truth = robot.sim.truth
     finally:
         bus.nmt_preop()
     assert truth.sim_time == pytest.approx(10.005, abs=1e-6)
@@ -130,7 +130,7 @@ def test_missing_simulator_is_a_fault_not_a_hang():
 @pytest.mark.parametrize("fault", ["node_gone", "emcy"])
 def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
     config = new_config()
-    bench = SimulatedBench(config)
+    robot = SimulatedRobot(config)
     try:
         with AgentBus(config) as bus:
             bus.wait_for_nodes()
@@ -138,15 +138,15 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
 
             def inject():
                 if fault == "node_gone":
-                    bench.nodes["imu"].close()
+                    robot.nodes["imu"].close()
                 else:
-                    bench.nodes["torso"].emcy.send(0x5000, 0x01)  # device hardware fault
+                    robot.nodes["torso"].emcy.send(0x5000, 0x01)  # device hardware fault
             # at the SYNC that takes the simulation past 0.5 s, right after its physics step
-            injected = at_sync(bench.network, lambda: bench.sim.sim_time >= 0.5, inject)
+            injected = at_sync(robot.network, lambda: robot.sim.sim_time >= 0.5, inject)
             r = run(runner, "lifting", SENSIBLE_LIFT)
             assert injected.is_set()
     finally:
-        bench.close()
+        robot.close()
     expected = {"node_gone": ("fault_pdo_timeout", "pdo_timeouts"), "emcy": ("fault_emcy", "emcy_faults")}
     status, counter = expected[fault]
     assert r.status == status and r.fault_counts[counter] == 1
@@ -156,7 +156,7 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
 
 def test_realtime_episode_paces_sync_by_the_wall_clock():
     config = new_config()
-    with SimulatedBench(config, realtime=True) as bench, \
+    with SimulatedRobot(config, realtime=True) as robot, \
             AgentBus(config, timing=BusTiming(realtime=True)) as bus:
         bus.wait_for_nodes()
         runner = EpisodeRunner(bus)
@@ -164,4 +164,4 @@ def test_realtime_episode_paces_sync_by_the_wall_clock():
     assert r.status == "ok" and r.telemetry["n_cycles"] == 400
     assert r.wall_s >= 2.0  # 400 SYNCs at 5 ms cannot finish sooner
     assert "late_cycles" in r.fault_counts
-    assert bench.stats.cycles > 0
+    assert robot.stats.cycles > 0

@@ -147,7 +147,7 @@ def test_lifting_with_a_sensible_spline_lifts_the_bottle(stack):
     assert error is None and result.status == "ok", (error, result)
     assert not result.failed("bottle_dropped")
     assert result.telemetry["final_bottle_height_m"] > 1.1
-    assert result.telemetry["bench_bottle_height_m"] > 1.1
+    assert result.telemetry["truth_bottle_height_m"] > 1.1
 
 
 def _raw(obj: dict) -> bytes:
@@ -222,12 +222,12 @@ def test_killing_the_simulator_mid_episode_is_a_fault():
 
 
 def test_without_a_test_bench_the_agent_waits_for_the_go_signal(caplog):
-    from firmware_sim.nodes.simbench import SimulatedBench
-    from protocol.can.bench import ROBOT
+    from firmware_sim.nodes.simrobot import SimulatedRobot
+    from protocol.can.devices import ROBOT
     from protocol.can.busconfig import BusConfig
 
     bus = BusConfig("virtual", f"go-{uuid.uuid4().hex[:8]}")
-    with SimulatedBench(bus, devices=ROBOT), EmbeddedRouter() as router:
+    with SimulatedRobot(bus, devices=ROBOT), EmbeddedRouter() as router:
         config = AgentConfig(robot=ROBOT_NAME_GO, bus=bus, zenoh_connect=(router.endpoint,))
         with AgentService(config) as agent, router.open_client() as session:
             keys = KeySpace(ROBOT_NAME_GO)
@@ -242,6 +242,6 @@ def test_without_a_test_bench_the_agent_waits_for_the_go_signal(caplog):
             t.join(timeout=60)
             result = EpisodeResult.from_json(replies[0].ok.payload)
             assert result.status == "ok" and result.telemetry["n_cycles"] == 400
-            assert "bench_impact_momentum_ns" not in result.telemetry  # no test bench to ask
+            assert "truth_impact_momentum_ns" not in result.telemetry  # no test bench to ask
             assert agent.episodes == 1
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, JOINT_INDEX, Commands, Telemetry
-from protocol.can.bench import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, object_dictionary
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, object_dictionary
 from protocol.can.objects import Control, Index
 from protocol.can.pdo import pdo_maps
 

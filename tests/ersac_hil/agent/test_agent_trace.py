@@ -1,4 +1,4 @@
-"""CAN traces per episode (``agent --record-can``): real agent service, simulated bench on a
+"""CAN traces per episode (``agent --record-can``): real agent service, simulated robot on a
 virtual bus, real Zenoh router; the traces read back with python-can."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from ersac_hil.agent.service import AgentConfig, AgentService
 from ersac_hil.agent.trace import CanRecorder
 from ersac_hil.zenoh_session import EmbeddedRouter
-from firmware_sim.nodes.simbench import SimulatedBench
+from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can.busconfig import BusConfig, open_bus
@@ -22,7 +22,7 @@ pytestmark = pytest.mark.timeout(120)
 def test_each_episode_writes_a_blf_trace_named_in_the_result(tmp_path):
     bus = BusConfig("virtual", f"trace-{uuid.uuid4().hex[:8]}")
     keys = KeySpace("ubot-trace")
-    bench = SimulatedBench(bus)
+    robot = SimulatedRobot(bus)
     try:
         with EmbeddedRouter() as router:
             config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,),
@@ -35,7 +35,7 @@ def test_each_episode_writes_a_blf_trace_named_in_the_result(tmp_path):
                     replies += [EpisodeResult.from_json(r.ok.payload)
                                 for r in session.get(keys.episode_run, payload=request.to_json(), timeout=60)]
     finally:
-        bench.close()
+        robot.close()
     # (an episode a loaded machine turns into a fault has its trace too: not asserted ok)
     assert [r.trace for r in replies] == ["ep-a.blf", "ep-b.blf"]
     for result in replies:

@@ -63,27 +63,27 @@ def test_terms_must_match_the_weights() -> None:
 )
 def test_reweighting_recomputes_every_cost_exactly(terms, w1, w2) -> None:
     W1, W2 = CostWeights(dict(zip(NAMES, w1))), CostWeights(dict(zip(NAMES, w2)))
-    store = Observations(1, W1)
+    observations = Observations(1, W1)
     for i, t in enumerate(terms):
-        store.add([i * 0.01], dict(zip(NAMES, t)))
-    original = store.costs.copy()
+        observations.add([i * 0.01], dict(zip(NAMES, t)))
+    original = observations.costs.copy()
     # every cost equals the weighted sum computed on its own, bit for bit
     assert original.tolist() == [W1.combine(dict(zip(NAMES, t))) for t in terms]
-    store.reweight(W2)
-    assert store.costs.tolist() == [W2.combine(dict(zip(NAMES, t))) for t in terms]
-    store.reweight(W1)
-    assert store.costs.tolist() == original.tolist()  # exact round trip
+    observations.reweight(W2)
+    assert observations.costs.tolist() == [W2.combine(dict(zip(NAMES, t))) for t in terms]
+    observations.reweight(W1)
+    assert observations.costs.tolist() == original.tolist()  # exact round trip
 
 
 def test_reweight_rejects_other_term_sets_and_changes_nothing() -> None:
-    store = Observations(1, CostWeights({"impact": 1.0, "energy": 1.0}))
-    store.add([0.0], {"impact": 1.0, "energy": 2.0})
-    before = store.costs.copy()
+    observations = Observations(1, CostWeights({"impact": 1.0, "energy": 1.0}))
+    observations.add([0.0], {"impact": 1.0, "energy": 2.0})
+    before = observations.costs.copy()
     with pytest.raises(MissingTermError):
-        store.reweight(CostWeights({"impact": 1.0}))
+        observations.reweight(CostWeights({"impact": 1.0}))
     with pytest.raises(UnknownTermError):
-        store.reweight(CostWeights({"impact": 1.0, "energy": 1.0, "damage": 3.0}))
-    assert store.costs.tolist() == before.tolist() and store.weights == CostWeights({"impact": 1.0, "energy": 1.0})
+        observations.reweight(CostWeights({"impact": 1.0, "energy": 1.0, "damage": 3.0}))
+    assert observations.costs.tolist() == before.tolist() and observations.weights == CostWeights({"impact": 1.0, "energy": 1.0})
 
 
 def test_learner_reweight_changes_the_critic_and_is_exact() -> None:

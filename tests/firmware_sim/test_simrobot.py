@@ -1,40 +1,40 @@
-"""The simulated bench through its CAN interface: SDO configuration reaches the firmware,
-splines download and run, the test bench resets scenarios, telemetry is deterministic."""
+"""The simulated robot through its CAN interface: SDO configuration reaches the firmware,
+splines download and run, the test robot resets scenarios, telemetry is deterministic."""
 from __future__ import annotations
 
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from firmware_sim.nodes.simbench import SimulatedBench
+from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import FrameLog, Master, set_state
 from protocol.can import cobid
 from protocol.can import objects as o
-from protocol.can.bench import ARM_LEFT, BENCH, TESTBENCH, WHEELS
+from protocol.can.devices import ARM_LEFT, DEVICES, TESTBENCH, WHEELS
 from protocol.can.pdo import cyclic_pdos
 from protocol.can.objects import Control, Index, Status
 from protocol.can.sdo import RANGE_ABORTS
 
 pytestmark = pytest.mark.timeout(120)
 
-N_TPDO = sum(1 for p in cyclic_pdos() if p.direction == "tpdo")  # per SYNC, whole bench
+N_TPDO = sum(1 for p in cyclic_pdos() if p.direction == "tpdo")  # per SYNC, whole robot
 
 
 @pytest.fixture
 def rig(can_backend):
-    bench = SimulatedBench(can_backend)
-    master = Master(can_backend, BENCH)
-    yield bench, master.network, master.nodes
+    robot = SimulatedRobot(can_backend)
+    master = Master(can_backend, DEVICES)
+    yield robot, master.network, master.nodes
     master.close()
-    bench.close()
+    robot.close()
 
 
 def tpdo_log(net) -> FrameLog:
-    """Every TPDO frame of the bench, in arrival order."""
-    return FrameLog(net, [cobid.tpdo(n, d.node_id) for d in BENCH for n in (1, 2, 3)])
+    """Every TPDO frame of the robot, in arrival order."""
+    return FrameLog(net, [cobid.tpdo(n, d.node_id) for d in DEVICES for n in (1, 2, 3)])
 
 
 def sync_and_wait(net, log: FrameLog, expected: int) -> None:
-    """One SYNC, then wait for the ``expected`` TPDO frames it makes the bench send."""
+    """One SYNC, then wait for the ``expected`` TPDO frames it makes the robot send."""
     n0 = len(log.frames)
     net.send_message(cobid.SYNC, b"")
     log.wait_for(lambda frames: len(frames) >= n0 + expected, what="the TPDOs of a SYNC")
@@ -55,76 +55,76 @@ def reset(nodes, scenario: o.Scenario, seed: int) -> None:
 
 
 def test_stiffness_by_sdo_reaches_the_firmware(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     arm = nodes[ARM_LEFT.name].sdo
     arm[Index.STIFFNESS][2].raw = o.STIFFNESS.to_raw(250.0)
-    assert bench.sim.controller("arm_left").impedance("elbow_left")[0] == pytest.approx(250.0)
+    assert robot.sim.controller("arm_left").impedance("elbow_left")[0] == pytest.approx(250.0)
     assert arm[Index.STIFFNESS][2].raw == 25000
     with pytest.raises(SdoAbortedError) as exc:
         arm[Index.STIFFNESS][2].raw = 50001
     assert exc.value.code in RANGE_ABORTS
-    assert bench.sim.controller("arm_left").impedance("elbow_left")[0] == pytest.approx(250.0)
+    assert robot.sim.controller("arm_left").impedance("elbow_left")[0] == pytest.approx(250.0)
 
 
 def test_spline_download_start_and_tracking(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     reset(nodes, o.Scenario.IDLE, 1)
     arm = nodes[ARM_LEFT.name]
     for sub in (1, 2):
         arm.sdo[Index.STIFFNESS][sub].raw = o.STIFFNESS.to_raw(400.0)
         arm.sdo[Index.DAMPING][sub].raw = o.DAMPING.to_raw(8.0)
-    q0 = bench.sim.axis("shoulder_left").position
+    q0 = robot.sim.axis("shoulder_left").position
     knots = [(0.0, q0, 0.0), (0.3, q0 + 0.4, 0.0)]
     for k, (t, q, v) in enumerate(knots, start=1):
         arm.sdo[Index.SPLINE_KNOT_TIME][k].raw = o.KNOT_TIME.to_raw(t)
         arm.sdo[o.spline_position_index(1)][k].raw = o.POSITION.to_raw(q)
         arm.sdo[o.spline_velocity_index(1)][k].raw = 0
-        elbow = bench.sim.axis("elbow_left").position
+        elbow = robot.sim.axis("elbow_left").position
         arm.sdo[o.spline_position_index(2)][k].raw = o.POSITION.to_raw(elbow)
         arm.sdo[o.spline_velocity_index(2)][k].raw = 0
     arm.sdo[Index.SPLINE_KNOT_COUNT].raw = 2
-    assert bench.sim.controller("arm_left").spline is not None
+    assert robot.sim.controller("arm_left").spline is not None
     arm.rpdo.read(from_od=True)
-    set_state(net, BENCH, "OPERATIONAL")
+    set_state(net, DEVICES, "OPERATIONAL")
     rec = tpdo_log(net)
-    elbow = o.POSITION.to_raw(bench.sim.axis("elbow_left").position)
+    elbow = o.POSITION.to_raw(robot.sim.axis("elbow_left").position)
     for k in range(120):  # 0.6 s
         word = Control.ENABLE | (Control.START_SPLINE if k >= 1 else Control(0))
         send(arm.rpdo.map[1], o.POSITION.to_raw(q0), elbow, int(word))
         sync_and_wait(net, rec, N_TPDO)
-    assert bench.sim.axis("shoulder_left").position == pytest.approx(q0 + 0.4, abs=0.08)
+    assert robot.sim.axis("shoulder_left").position == pytest.approx(q0 + 0.4, abs=0.08)
     assert Status(arm.sdo[Index.STATUS].raw) & Status.SPLINE_DONE
 
 
 def test_invalid_spline_is_refused(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     arm = nodes[ARM_LEFT.name].sdo
     for k in (1, 2):
         arm[Index.SPLINE_KNOT_TIME][k].raw = 500  # two knots at the same time
     with pytest.raises(SdoAbortedError) as exc:
         arm[Index.SPLINE_KNOT_COUNT].raw = 2
     assert exc.value.code in RANGE_ABORTS
-    assert bench.sim.controller("arm_left").spline is None
+    assert robot.sim.controller("arm_left").spline is None
 
 
 def test_testbench_reset_selects_scenario_and_seed(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     reset(nodes, o.Scenario.BRACING, 7)
-    assert (bench.sim.scenario, bench.sim.seed) == ("bracing", 7)
+    assert (robot.sim.scenario, robot.sim.seed) == ("bracing", 7)
     momentum = o.MOMENTUM.from_raw(nodes[TESTBENCH.name].sdo[Index.IMPACT_MOMENTUM].raw)
     assert 6.0 <= momentum <= 22.0
-    assert momentum == pytest.approx(bench.sim.truth.impact_momentum, abs=0.01)
+    assert momentum == pytest.approx(robot.sim.truth.impact_momentum, abs=0.01)
     with pytest.raises(SdoAbortedError) as exc:
         nodes[TESTBENCH.name].sdo[Index.SCENARIO].raw = 3
     assert exc.value.code in RANGE_ABORTS
 
 
 def _episode_frames(rig, seed: int, cycles: int) -> list[tuple[int, bytes]]:
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     net.nmt.state = "PRE-OPERATIONAL"
     reset(nodes, o.Scenario.BRACING, seed)
     nodes[ARM_LEFT.name].sdo[Index.STIFFNESS][2].raw = 20000
-    set_state(net, BENCH, "OPERATIONAL")
+    set_state(net, DEVICES, "OPERATIONAL")
     rec = tpdo_log(net)
     wheels = nodes[WHEELS.name]
     wheels.rpdo.read(from_od=True)
@@ -145,25 +145,25 @@ def test_same_seed_same_commands_bit_identical_telemetry(rig):
 
 
 def test_actual_values_by_sdo_are_live_before_any_sync(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     reset(nodes, o.Scenario.BRACING, 2)
     arm = nodes[ARM_LEFT.name].sdo
     shoulder = o.POSITION.from_raw(arm[Index.POSITION][1].raw)
-    assert shoulder == pytest.approx(bench.sim.axis("shoulder_left").position, abs=2e-4)
+    assert shoulder == pytest.approx(robot.sim.axis("shoulder_left").position, abs=2e-4)
     assert shoulder != 0.0
     pitch = o.PITCH.from_raw(nodes["imu"].sdo[Index.PITCH].raw)
-    assert pitch == pytest.approx(bench.sim.imu().pitch, abs=2e-4)
+    assert pitch == pytest.approx(robot.sim.imu().pitch, abs=2e-4)
 
 
 def test_setpoint_sent_with_the_enabling_rpdo_takes_effect(rig):
-    bench, net, nodes = rig
+    robot, net, nodes = rig
     reset(nodes, o.Scenario.IDLE, 1)
     arm = nodes[ARM_LEFT.name]
     arm.rpdo.read(from_od=True)
-    set_state(net, BENCH, "OPERATIONAL")
-    target = bench.sim.axis("shoulder_left").position + 0.3
-    elbow = o.POSITION.to_raw(bench.sim.axis("elbow_left").position)
+    set_state(net, DEVICES, "OPERATIONAL")
+    target = robot.sim.axis("shoulder_left").position + 0.3
+    elbow = o.POSITION.to_raw(robot.sim.axis("elbow_left").position)
     rec = tpdo_log(net)
     send(arm.rpdo.map[1], o.POSITION.to_raw(target), elbow, int(Control.ENABLE))
     sync_and_wait(net, rec, N_TPDO)
-    assert bench.sim.controller("arm_left").setpoint("shoulder_left") == pytest.approx(target, abs=1e-3)
+    assert robot.sim.controller("arm_left").setpoint("shoulder_left") == pytest.approx(target, abs=1e-3)

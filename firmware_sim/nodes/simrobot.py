@@ -1,4 +1,4 @@
-"""The simulated bench on the bus: one simulator, six CANopen nodes, SYNC-driven stepping.
+"""The simulated robot on the bus: one simulator, six CANopen nodes, SYNC-driven stepping.
 
 Lock-step (default): each SYNC applies the RPDOs received since the previous SYNC, advances
 exactly one control period of physics, sends the failure EMCYs of that period, then every
@@ -17,7 +17,7 @@ from firmware_sim.nodes.base import SlaveNode
 from firmware_sim.nodes.devices import APPS
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
-from protocol.can.bench import BENCH, Device
+from protocol.can.devices import DEVICES, Device
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import EmcyCode, Index
 
@@ -33,23 +33,23 @@ _CONFIG_INDEXES = {Index.POSITION_LIMIT_MIN, Index.POSITION_LIMIT_MAX, Index.VEL
 
 
 @dataclass
-class BenchStats:
+class RobotStats:
     cycles: int = 0
     step_seconds: float = 0.0
     overruns: int = 0
     resets: int = 0
 
 
-class SimulatedBench:
-    """Start with ``SimulatedBench(bus_config)``; ``close()`` takes every node off the bus."""
+class SimulatedRobot:
+    """Start with ``SimulatedRobot(bus_config)``; ``close()`` takes every node off the bus."""
 
     def __init__(self, bus_config: BusConfig, *, seed: int = 0, realtime: bool = False,
                  control_period: float = 0.005, substeps: int = 5,
-                 devices: tuple[Device, ...] = BENCH) -> None:
+                 devices: tuple[Device, ...] = DEVICES) -> None:
         self.devices = devices
         self.realtime = realtime
         self.lock = threading.RLock()
-        self.stats = BenchStats()
+        self.stats = RobotStats()
         self.sim = Simulator(control_period, substeps)
         self.sim.reset("idle", seed)
         self.network = open_network(bus_config)
@@ -130,7 +130,7 @@ class SimulatedBench:
             node.close()
         self.network.disconnect()
 
-    def __enter__(self) -> "SimulatedBench":
+    def __enter__(self) -> "SimulatedRobot":
         return self
 
     def __exit__(self, *exc) -> None:

@@ -1,6 +1,7 @@
-"""The uBot-5 bench: which devices exist, their node-ids, and their EDS files.
+"""The uBot-5's CANopen devices and the simulator's test bench: which exist, their node-ids,
+and their EDS files.
 
-``BENCH`` is the single table of node assignments. ``object_dictionary(device)`` loads the
+``DEVICES`` is the single table of node assignments. ``object_dictionary(device)`` loads the
 device's EDS with canopen (cached per device).
 """
 from __future__ import annotations
@@ -25,11 +26,11 @@ CONSUMER_HEARTBEAT_MS = 250
 
 @dataclass(frozen=True)
 class Device:
-    """One CANopen node of the bench.
+    """One CANopen node.
 
     ``axes`` names the motor axes in sub-index order (sub-index 1 = ``axes[0]``).
     ``joints`` are the robot-level names of those axes (what the simulator calls them).
-    ``simulated_only`` marks nodes that exist only on a simulated bench.
+    ``simulated_only`` marks nodes that exist only on a simulated robot (the test bench).
     """
     name: str
     node_id: int
@@ -50,19 +51,19 @@ ARM_RIGHT = Device("arm_right", 0x13, "arm.eds", ("shoulder", "elbow"), ("should
 IMU = Device("imu", 0x20, "imu.eds")
 TESTBENCH = Device("testbench", 0x7E, "testbench.eds", simulated_only=True)
 
-BENCH: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT, IMU, TESTBENCH)
-"""Every node of a simulated uBot bench, in node-id order."""
+DEVICES: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT, IMU, TESTBENCH)
+"""Every node of a simulated uBot, in node-id order."""
 
-ROBOT: tuple[Device, ...] = tuple(d for d in BENCH if not d.simulated_only)
+ROBOT: tuple[Device, ...] = tuple(d for d in DEVICES if not d.simulated_only)
 """The nodes a real robot has."""
 
 
 def device(name_or_id: str | int) -> Device:
     """Look a device up by name (``"arm_left"``) or node-id."""
-    for d in BENCH:
+    for d in DEVICES:
         if d.name == name_or_id or d.node_id == name_or_id:
             return d
-    raise KeyError(f"no device {name_or_id!r} on the uBot bench; known: {[d.name for d in BENCH]}")
+    raise KeyError(f"no device {name_or_id!r} on the uBot; known: {[d.name for d in DEVICES]}")
 
 
 def eds_path(filename: str) -> Path:
