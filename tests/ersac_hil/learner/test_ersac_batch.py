@@ -106,7 +106,7 @@ def test_a_pending_batch_survives_save_and_restore():
     X = ref.ask_batch(3)
     saved = json.loads(json.dumps(ref.get_state()))
     resumed = ERSAC.from_state(saved)
-    for x, c in zip(ref.store.points, ref.store.costs):
+    for x, c in zip(ref.observations.points, ref.observations.costs):
         resumed.observe(x, float(c))
     np.testing.assert_array_equal(resumed.pending, X)
     costs = [cost(x, noise) for x in X]
