@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import zenoh
@@ -70,13 +71,15 @@ class AgentLink:
         keys: the robot's key space.
         episode_timeout_s: the query timeout of one episode.
         stop: set when the daemon stops; waits and back-offs then raise :class:`Stopped`.
+        on_change: called (outside the link's lock) whenever a presence token comes or goes.
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, episode_timeout_s: float,
-                 stop: threading.Event) -> None:
+                 stop: threading.Event, on_change: Callable[[], None] | None = None) -> None:
         self.keys = keys
         self.timeout_s = episode_timeout_s
         self._stop = stop
+        self._on_change = on_change
         self._agents: set[str] = set()
         self._sessions: set[str] = set()
         self._change = threading.Condition()
@@ -105,6 +108,8 @@ class AgentLink:
                 if token is not None and not self._agents:
                     token.cancel()  # the episode's agent vanished: do not wait for the timeout
             self._change.notify_all()
+        if self._on_change is not None:
+            self._on_change()
 
     def _on_session(self, sample: zenoh.Sample) -> None:
         zid = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -114,6 +119,8 @@ class AgentLink:
             else:
                 self._sessions.discard(zid)
             self._change.notify_all()
+        if self._on_change is not None:
+            self._on_change()
 
     @property
     def alive(self) -> bool:

@@ -56,7 +56,9 @@ def _daemon(args: argparse.Namespace) -> int:
     from ersac_hil.zenoh_session import ZenohSessionError
 
     flags: dict[str, Any] = {
-        "robot": args.robot, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
+        "robot": args.robot[0] if args.robot else None,
+        "fleet": tuple(args.robot[1:]) if args.robot and len(args.robot) > 1 else None,
+        "batch": args.batch, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
         "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
         "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
         "zenoh": tuple(args.zenoh) if args.zenoh else None, "zenoh_config": args.zenoh_config,
@@ -260,7 +262,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Learn with ERSAC by asking the robot-side agent to run episodes. "
                                    "Flags override the --config TOML file.")
     p.add_argument("--config", metavar="FILE", help="TOML config file (keys = long flag names with _)")
-    p.add_argument("--robot", help="robot name (required here or in the file)")
+    p.add_argument("--robot", action="append",
+                   help="robot name (required here or in the file); repeat for a fleet: the first "
+                        "names the run and its control plane, every one (a name or a one-chunk key "
+                        "expression such as 'ubot$*') serves its episodes")
+    p.add_argument("--batch", type=int,
+                   help="perturbations per update, run in parallel on the fleet (default 1: the paper's)")
     p.add_argument("--prefix", help="key prefix (default ersac)")
     p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
     p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")

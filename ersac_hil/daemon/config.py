@@ -14,6 +14,8 @@ optional ``[weights]`` table::
 
     robot = "ubot1"
     task = "bracing"
+    fleet = ["ubot2", "lab$*"]         # more agents serving this run's episodes
+    batch = 2                          # perturbations per update (default 1)
     kappa = 2.0
     episodes = 45
     zenoh = ["tls/192.0.2.10:7447"]
@@ -24,6 +26,7 @@ optional ``[weights]`` table::
 """
 from __future__ import annotations
 
+import re
 import tomllib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Annotated, Any
@@ -58,8 +61,12 @@ class ConfigError(ValueError):
 
 #: Fields that define a learning run (stored with it; a resumed run keeps the stored ones).
 LEARNER_FIELDS: tuple[str, ...] = (
-    "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed",
+    "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed", "batch",
 )
+#: The value of a learner field a run stored before the field existed.
+LEGACY_SETTINGS: dict[str, Any] = {"batch": 1}
+#: One key chunk naming robots: a name or a pattern with ``*`` / ``$*`` (e.g. ``ubot$*``).
+FLEET_PATTERN = re.compile(r"\*|(?:[A-Za-z0-9_.\-]|\$\*){1,64}")
 class TaskDefaults(msgspec.Struct, frozen=True):
     """The learner settings of a new run of one task unless configured (shapes ``(dim,)``)."""
 
@@ -107,7 +114,14 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     service never re-validates. Invalid values raise :class:`ConfigError` naming the field.
 
     Attributes:
-        robot: robot name (one Zenoh key chunk); keys live under ``<prefix>/<robot>``.
+        robot: robot name (one Zenoh key chunk); keys live under ``<prefix>/<robot>``. It
+            names the run (store) and the control plane (``<prefix>/<robot>/learner/...``),
+            and its agent serves the run's episodes.
+        fleet: more robots whose agents serve the run's episodes, each a name or a one-chunk
+            key expression of names (``*``, ``ubot$*``); every agent present is used, work
+            goes to whichever is free (``--robot A --robot B``: robot A, fleet (B,)).
+        batch: perturbations per update, evaluated in parallel on the fleet and combined as
+            the average of their eq. 10 terms (1: the paper's Algorithm 1).
         prefix: key prefix (default ``ersac``).
         task: ``bracing`` or ``lifting`` (``protocol.zenoh.TASKS``).
         kappa: initial risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``.
@@ -143,6 +157,8 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     """
 
     robot: str
+    fleet: tuple[str, ...] = ()
+    batch: Annotated[int, Meta(ge=1, le=64)] = 1
     task: TaskName = "bracing"
     kappa: Kappa = 0.0
     episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None
@@ -176,10 +192,23 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
 
     def _check(self) -> None:
         set_ = lambda k, v: force_setattr(self, k, v)  # noqa: E731
+        if "*" in self.robot:
+            raise InvalidField("robot", f"{self.robot!r}: the (first) robot names the run and its control "
+                                        "plane, so it is a plain name; patterns come after it "
+                                        "(--robot ubot1 --robot 'ubot$*')")
         try:
             KeySpace(self.robot, self.prefix)
         except ValueError as exc:
             raise InvalidField("robot", str(exc)) from None
+        import zenoh
+        for source in self.fleet:
+            try:
+                if not FLEET_PATTERN.fullmatch(source):
+                    raise ValueError
+                zenoh.KeyExpr(f"{self.prefix}/{source}/agent/alive")
+            except (ValueError, zenoh.ZError):
+                raise InvalidField("fleet", f"{source!r} is neither a robot name nor a one-chunk key "
+                                            "expression of names (e.g. ubot2, *, ubot$*)") from None
         spec = get_task(self.task)
         defaults = task_defaults(self.task)
         set_("theta0", spec.check_theta(defaults.theta0 if self.theta0 is None else self.theta0, "theta0"))
@@ -222,6 +251,11 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     def keys(self) -> KeySpace:
         """The robot's Zenoh key space."""
         return KeySpace(self.robot, self.prefix)
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        """The robot names and patterns whose agents serve the run (robot first, no repeats)."""
+        return tuple(dict.fromkeys((self.robot, *self.fleet)))
 
     def learner_settings(self) -> dict[str, Any]:
         """The learner fields as a JSON-ready dict (stored with a run)."""
@@ -268,11 +302,12 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     if unknown:
         raise ConfigError(f"config file {path}: unknown keys {unknown}; known: {sorted(_FIELD_NAMES)}")
     out = dict(data)
-    for key in ("theta0", "sigma", "lr_range", "backoff_s", "zenoh"):
+    for key in ("theta0", "sigma", "lr_range", "backoff_s", "zenoh", "fleet"):
         if isinstance(out.get(key), list):
             out[key] = tuple(out[key])
-    if isinstance(out.get("zenoh"), str):
-        out["zenoh"] = (out["zenoh"],)
+    for key in ("zenoh", "fleet"):
+        if isinstance(out.get(key), str):
+            out[key] = (out[key],)
     return out
 
 

@@ -7,7 +7,12 @@ Resume (:meth:`Engine.restore`): ``ERSAC.from_state`` with the state stored afte
 update (RNG, theta, kappa, last critic fit, observation digest), then every stored ok
 episode re-observed in order; the latest kappa and weights are applied and a theta adopted
 after the last update replaces the stored one. The next ``propose`` then draws exactly the
-perturbation an uninterrupted learner would have drawn.
+perturbations an uninterrupted learner would have drawn.
+
+Batches: ``propose(k)`` draws k perturbations around the policy mean (the learner's
+``ask_batch``), ``learn`` tells their cost terms together (``tell_batch``: one update from the
+average of their eq. 10 terms). k = 1 is the paper's Algorithm 1, bit for bit the learner's
+``ask``/``tell``.
 """
 from __future__ import annotations
 
@@ -141,20 +146,30 @@ class Engine:
         return float(self._learner.weights.combine(dict(terms)))
 
     # ------------------------------------------------------------------ ask / tell
-    def propose(self) -> Proposal:
-        """Draw the next perturbation (idempotent until :meth:`learn`)."""
+    def propose(self, k: int = 1) -> tuple[Proposal, ...]:
+        """Draw k perturbations of the policy mean (idempotent until :meth:`learn`)."""
         base = self._learner.theta
-        executed = self._learner.ask()
+        return tuple(self._proposal(base, x) for x in self._learner.ask_batch(k))
+
+    def redraw(self, i: int) -> Proposal:
+        """The agent refused the parameters of proposal ``i``: a new draw for it alone (the
+        RNG has moved on, deterministically)."""
+        return self._proposal(self._learner.theta, self._learner.reask(i))
+
+    @staticmethod
+    def _proposal(base: np.ndarray, executed: np.ndarray) -> Proposal:
         return Proposal(_tuple(base), _tuple(executed - base), _tuple(executed))
 
-    def learn(self, proposal: Proposal, terms: Mapping[str, float], *, run_id: str, idx: int,
-              episode_id: str, stamp_s: float) -> UpdateRecord:
-        """Tell the learner the cost terms of the proposal's episode; the update as stored."""
-        u = self._learner.tell(np.asarray(proposal.theta, dtype=float), dict(terms))
+    def learn(self, proposals: Sequence[Proposal], terms: Sequence[Mapping[str, float]], *, run_id: str,
+              idx: int, episode_ids: Sequence[str], stamp_s: float) -> UpdateRecord:
+        """Tell the learner the cost terms of the proposals' episodes (in proposal order); the
+        update as stored (``idx``: the update's index)."""
+        u = self._learner.tell_batch(np.array([p.theta for p in proposals], dtype=float),
+                                     [dict(t) for t in terms])
         self.last_skipped = u.skipped
         opt = lambda v: None if v is None else float(v)  # noqa: E731
         return UpdateRecord(
-            run_id=run_id, idx=idx, episode_id=episode_id,
+            run_id=run_id, idx=idx, episode_id=episode_ids[-1], episodes=tuple(episode_ids),
             theta_before=_tuple(u.theta_before), theta_after=_tuple(u.theta_after),
             cost=float(u.cost), J=opt(u.J_tilde), r=opt(u.r_tilde), r_z=opt(u.r_tilde_perturbed),
             td_error=opt(u.td_error), kappa=float(u.kappa), lr=float(u.step_size),
@@ -188,11 +203,6 @@ class Engine:
     def adopt(self, theta: Sequence[float]) -> None:
         """Make ``theta`` the policy mean (no pending proposal allowed)."""
         self._learner.theta = [float(v) for v in theta]
-
-    def discard(self) -> None:
-        """Forget the pending proposal (the agent refused its parameters): the next
-        :meth:`propose` draws a new perturbation from the RNG, which has moved on."""
-        self._learner.discard()
 
     # ------------------------------------------------------------------ critic / selection
     def critic(self, points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:

@@ -47,7 +47,7 @@ class ControlHandlers:
         with run.lock:
             e = run.engine
             return LearnerState(run.run_id, self._task, run.status, e.theta, e.sigma, e.kappa,
-                                e.weights, run.n_updates)
+                                e.weights, run.n_episodes)
 
     def critic(self, query: CriticQuery) -> CriticReply:
         points = query.points_for(self._task)

@@ -3,9 +3,12 @@
 The learning loop and the control-plane handlers both change the run; every change goes
 through here, so what the learner believes and what the store holds never disagree:
 
-- :meth:`LearningRun.propose` / :meth:`LearningRun.redraw` open a proposal (the learner's
-  pending ask); :meth:`LearningRun.commit_success` tells the learner and commits the episode
-  with its update in one transaction, closing the proposal.
+- :meth:`LearningRun.propose` opens the next batch of proposals (the learner's pending ask of
+  ``batch`` perturbations; fewer for the last batch of the budget), :meth:`LearningRun.redraw`
+  replaces one the agent refused; :meth:`LearningRun.commit_ok` commits an ok episode whose
+  batch is not complete; :meth:`LearningRun.commit_update` tells the learner the whole batch
+  and commits the update with the episode that completed it in one transaction, closing the
+  proposal. With ``batch`` 1 every ok episode is committed with its update.
 - An adopted selection (:meth:`LearningRun.adopt`) never lands between an ask and its tell:
   while a proposal is open it waits and is applied right after the commit (or before the
   next proposal).
@@ -14,9 +17,9 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
-from protocol.zenoh import EpisodeRequest, EpisodeResult
+from protocol.zenoh import EpisodeResult
 
 from .config import DaemonConfig
 from .engine import Engine, Proposal
@@ -31,8 +34,9 @@ class LearningRun:
 
     Attributes:
         store, run, config (effective, after resume), engine, resumed, interrupted (attempts
-        found pending at start and marked ``interrupted``), n_updates, status (the daemon
-        status reported in ``LearnerState``). ``lock`` guards engine + store consistency.
+        found pending at start and marked ``interrupted``), n_updates, n_episodes (ok
+        episodes told to the learner), batch, status (the daemon status reported in
+        ``LearnerState``). ``lock`` guards engine + store consistency.
     """
 
     def __init__(self, store: Store, config: DaemonConfig) -> None:
@@ -42,6 +46,8 @@ class LearningRun:
         self.interrupted = store.interrupt_pending(self.run.run_id, "daemon died while pending")
         self.engine: Engine = rebuild_engine(store, self.run)
         self.n_updates = store.update_count(self.run.run_id)
+        self.n_episodes = sum(e.update_idx is not None for e in store.ok_episodes(self.run.run_id))
+        self.batch = int(self.run.settings.get("batch", 1))
         self.status = "idle"
         self.lock = threading.RLock()
         self._proposal_open = False
@@ -57,28 +63,42 @@ class LearningRun:
         return int(self.run.settings["episodes"])
 
     # ------------------------------------------------------------------ the learning loop's side
-    def propose(self) -> Proposal:
-        """Open the next proposal (applying an adoption that was waiting)."""
+    def propose(self) -> tuple[Proposal, ...]:
+        """Open the next batch: ``batch`` proposals for episodes ``n_episodes``, ... (fewer
+        if the budget ends first), applying an adoption that was waiting."""
         with self.lock:
             self._apply_pending_adopt()
-            proposal = self.engine.propose()
+            proposals = self.engine.propose(min(self.batch, self.budget - self.n_episodes))
             self._proposal_open = True
-            return proposal
+            return proposals
 
-    def redraw(self) -> Proposal:
-        """The agent refused the open proposal's parameters: draw another one."""
+    def redraw(self, i: int) -> Proposal:
+        """The agent refused the parameters of the open batch's proposal ``i``: another one."""
         with self.lock:
-            self.engine.discard()
-            return self.engine.propose()
+            return self.engine.redraw(i)
 
-    def commit_success(self, idx: int, request: EpisodeRequest, result: EpisodeResult,
-                       proposal: Proposal) -> UpdateRecord:
-        """Tell the learner, commit the episode and its update together, close the proposal."""
+    def commit_ok(self, episode_id: str, result: EpisodeResult) -> float:
+        """Commit an ok episode of an incomplete batch; returns its cost (current weights)."""
         with self.lock:
-            update = self.engine.learn(proposal, dict(result.cost_terms), run_id=self.run_id,
-                                       idx=idx, episode_id=request.episode_id, stamp_s=time.time())
-            self.store.record_success(request.episode_id, result, update.cost, update)
-            self.n_updates = idx + 1
+            cost = self.engine.cost(result.cost_terms)
+            self.store.record_ok(episode_id, result, cost)
+            return cost
+
+    def commit_update(self, proposals: Sequence[Proposal], terms: Sequence[Mapping[str, float]],
+                      episode_ids: Sequence[str], completing: EpisodeResult | None) -> UpdateRecord:
+        """Tell the learner the batch (``terms`` and ``episode_ids`` in proposal order), commit
+        the update with the episode ``completing`` it (``None``: all are committed already) in
+        one transaction, close the proposal."""
+        with self.lock:
+            update = self.engine.learn(proposals, terms, run_id=self.run_id, idx=self.n_updates,
+                                       episode_ids=episode_ids, stamp_s=time.time())
+            if completing is None:
+                self.store.record_success(None, None, None, update)
+            else:
+                self.store.record_success(completing.episode_id, completing,
+                                          self.engine.cost(completing.cost_terms), update)
+            self.n_updates += 1
+            self.n_episodes += len(proposals)
             self._proposal_open = False
             self._apply_pending_adopt()
         return update

@@ -86,6 +86,9 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
     failed = [a for a in store.attempts(run.run_id) if a.status not in ("ok", "pending")]
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(9, 7), sharex=True, constrained_layout=True)
     idx = np.arange(1, len(episodes) + 1)
+    # an update is drawn at its last episode (with a batch of k, one update per k episodes)
+    position = {e.episode_id: i + 1 for i, e in enumerate(episodes)}
+    at = np.array([position.get(u.episode_id, np.nan) for u in updates], dtype=float)
     costs = np.array([e.cost for e in episodes], dtype=float)
     if len(costs):
         damaged = np.array([_damaged(e) for e in episodes])
@@ -93,7 +96,8 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
         if damaged.any():
             ax.plot(idx[damaged], costs[damaged], "s", ms=5, color="tab:red", label="cost (hardware damage)")
         ax.plot(idx, _running_mean(costs), "-", color="k", lw=1.5, label="running mean (5)")
-        ax.plot(idx, [u.J for u in updates], "--", color="tab:green", lw=1.2, label="critic J~(theta)")
+        ax.plot(at, [np.nan if u.J is None else u.J for u in updates], "--", color="tab:green", lw=1.2,
+                label="critic J~(theta)")
     if failed:
         ax.plot([a.idx + 1 for a in failed], [np.nanmin(costs) if len(costs) else 0.0] * len(failed),
                 "x", color="tab:orange", label=f"failed attempts ({len(failed)})")
@@ -104,12 +108,12 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
     if updates:
         after = np.array([u.theta_after for u in updates])
         for d in range(after.shape[1]):
-            bx.plot(idx[: len(updates)], after[:, d], "-", lw=1.2, label=spec.param_names[d])
+            bx.plot(at, after[:, d], "-", lw=1.2, label=spec.param_names[d])
         kappas = [u.kappa for u in updates]
         for i in range(1, len(kappas)):
             if kappas[i] != kappas[i - 1]:
-                bx.axvline(i + 1, color="grey", ls=":", lw=1)
-                bx.text(i + 1, bx.get_ylim()[1], f" kappa {kappas[i]:g}", fontsize=7, va="top")
+                bx.axvline(at[i], color="grey", ls=":", lw=1)
+                bx.text(at[i], bx.get_ylim()[1], f" kappa {kappas[i]:g}", fontsize=7, va="top")
     bx.set_xlabel("episode")
     bx.set_ylabel("policy mean theta")
     bx.legend(loc="best", fontsize=8, ncol=2)

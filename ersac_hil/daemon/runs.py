@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from .config import LEARNER_FIELDS, RESUME_LATEST, RESUME_NEW, ConfigError, DaemonConfig
+from .config import LEARNER_FIELDS, LEGACY_SETTINGS, RESUME_LATEST, RESUME_NEW, ConfigError, DaemonConfig
 from .engine import Engine
 from .store import RunNotFound, RunRecord, Store
 
@@ -80,7 +80,7 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         settings["episodes"] = config.episodes_or_default
         run = store.create_run(new_run_id(), config.robot, config.task, seed, settings)
         return run, config.with_learner_settings(run.settings), False
-    stored = dict(run.settings)
+    stored = {**LEGACY_SETTINGS, **run.settings}
     given = config.learner_settings()
     conflicts = [k for k in LEARNER_FIELDS if k in config.explicit and given[k] != stored.get(k)]
     if conflicts:
@@ -100,7 +100,8 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
 def rebuild_engine(store: Store, run: RunRecord) -> Engine:
     """The learner exactly as it was after the run's last committed update.
 
-    Re-adds every ok episode (executed theta, cost terms), applies the latest kappa and
+    Re-adds every ok episode that fed an update (executed theta, cost terms; the ok episodes
+    of an incomplete batch are told with their batch), applies the latest kappa and
     weights, restores theta (the last update's, or a selection adopted after it) and the
     learner's state (RNG...) stored with the last update.
     """
@@ -109,11 +110,12 @@ def rebuild_engine(store: Store, run: RunRecord) -> Engine:
     kappa_change = store.latest_change(run.run_id, "kappa")
     theta_change = store.latest_change(run.run_id, "theta")
     last = store.last_update(run.run_id)
-    episodes = store.ok_episodes(run.run_id)
+    episodes = [e for e in store.ok_episodes(run.run_id) if e.update_idx is not None]
     n = 0 if last is None else last.idx + 1
-    if len(episodes) != n or any(e.idx != i for i, e in enumerate(episodes)):
-        raise RuntimeError(f"run {run.run_id}: ok episodes {[e.idx for e in episodes]} do not match "
-                           f"{n} updates")
+    if any(e.idx != i for i, e in enumerate(episodes)) or {e.update_idx for e in episodes} != set(range(n)) \
+            or [e.update_idx for e in episodes] != sorted(e.update_idx for e in episodes):
+        raise RuntimeError(f"run {run.run_id}: ok episodes {[(e.idx, e.update_idx) for e in episodes]} "
+                           f"do not match {n} updates")
     theta = tuple(s["theta0"]) if last is None else last.theta_after
     if theta_change is not None and theta_change.n_updates >= n:
         theta = tuple(theta_change.value)

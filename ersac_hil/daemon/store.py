@@ -8,8 +8,11 @@ Tables (schema version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``)::
               weights, failure flags, telemetry summary, fault counters, the file name of the
               agent's CAN trace of the episode, if it recorded one) and timestamps.
               ``idx`` is the learner episode the attempt serves; at most one "ok" attempt
-              per (run, idx) (a partial unique index enforces it).
-    updates   one row per learner update (= per ok episode, same idx): theta before/after,
+              per (run, idx) (a partial unique index enforces it). ``update_idx``: the
+              update an ok episode fed (NULL while its batch is incomplete).
+    updates   one row per learner update: with ``batch`` k = 1 (the paper's Algorithm 1) one
+              per ok episode, same idx; with k > 1 one per k ok episodes (``idx`` counts
+              updates, ``episode_id`` is the batch's last episode): theta before/after,
               the cost told, J~(theta), r~(theta), r~(theta+z), the TD error (all NULL
               during the learner's warm-up), kappa, step size and the learner's resumable
               state after the update (``ERSAC.get_state()``: RNG, theta, critic fit; JSON).
@@ -22,7 +25,8 @@ starts; a failed attempt is committed with its status and is never told to the l
 A weights change and the re-costing of every stored ok episode are one transaction.
 
 A store of an older schema is migrated in place when opened for writing (schema 1 -> 2: the
-``trace`` column); read-only opens read it as it is.
+``trace`` column; 2 -> 3: ``episodes.update_idx``, filled from the updates of the time, one
+episode each); read-only opens read it as it is.
 
 One connection shared by the daemon's threads, serialised by a lock. JSON columns hold
 floats as ``repr`` text, so values round-trip exactly.
@@ -56,10 +60,14 @@ __all__ = [
     "ChangeRecord",
 ]
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: Older schemas this code opens (read-write ones are migrated in place): 1 lacks
-#: ``episodes.trace``.
-_MIGRATIONS = {1: "ALTER TABLE episodes ADD COLUMN trace TEXT NOT NULL DEFAULT ''"}
+#: ``episodes.trace``, 2 lacks ``episodes.update_idx`` (every update then had one episode).
+_MIGRATIONS = {
+    1: "ALTER TABLE episodes ADD COLUMN trace TEXT NOT NULL DEFAULT ''",
+    2: "ALTER TABLE episodes ADD COLUMN update_idx INTEGER; "
+       "UPDATE episodes SET update_idx = (SELECT u.idx FROM updates u WHERE u.episode_id = episodes.episode_id)",
+}
 RUN_STATUSES: tuple[str, ...] = ("running", "finished", "failed")
 #: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own: pending (sent, no
 #: answer yet), timeout (no reply in time), lost (the agent's liveliness token vanished while
@@ -104,6 +112,7 @@ CREATE TABLE episodes (
     requested_s REAL NOT NULL,
     finished_s  REAL,
     trace       TEXT NOT NULL DEFAULT '',
+    update_idx  INTEGER,
     UNIQUE (run_id, idx, attempt)
 );
 CREATE UNIQUE INDEX episodes_one_ok ON episodes(run_id, idx) WHERE status = 'ok';
@@ -205,6 +214,7 @@ class EpisodeRecord:
     requested_s: float
     finished_s: float | None
     trace: str = ""
+    update_idx: int | None = None
 
     @property
     def ok(self) -> bool:
@@ -213,8 +223,11 @@ class EpisodeRecord:
 
 @dataclass(frozen=True)
 class UpdateRecord:
-    """One learner update (after ok episode ``idx``), the daemon's only update record: the
-    engine builds it from the learner's ``Update``, the store keeps and returns it. ``J``
+    """One learner update, the daemon's only update record: the engine builds it from the
+    learner's ``Update``, the store keeps and returns it. ``idx``: the update's index (the
+    ok episode's idx when every update has one episode); ``episodes``: the ids of the ok
+    episodes that fed it, in idx order (``episode_id`` is the last); for a batch of k > 1
+    ``cost``, ``r_z`` and ``td_error`` are means over its episodes. ``J``
     (= J~(theta_before)), ``r`` (= r~(theta_before)), ``r_z`` (= r~ at the executed theta)
     and ``td_error`` are ``None`` for warm-up updates (no step); ``lr`` is the step size
     eta / r~ after clipping; ``state``: the learner's resumable state after the update."""
@@ -233,6 +246,7 @@ class UpdateRecord:
     lr: float
     state: Mapping[str, Any]
     stamp_s: float
+    episodes: tuple[str, ...] = ()
 
     @property
     def warmup(self) -> bool:
@@ -271,15 +285,17 @@ def _episode(row: sqlite3.Row) -> EpisodeRecord:
         _loads(row["failures"]), _loads(row["telemetry"]), _loads(row["fault_counts"]),
         row["duration_s"], row["wall_s"], row["detail"], row["requested_s"], row["finished_s"],
         row["trace"] if "trace" in row.keys() else "",
+        row["update_idx"] if "update_idx" in row.keys() else None,
     )
 
 
-def _update(row: sqlite3.Row) -> UpdateRecord:
+def _update(row: sqlite3.Row, fed: Sequence[str]) -> UpdateRecord:
     return UpdateRecord(
         run_id=row["run_id"], idx=row["idx"], episode_id=row["episode_id"],
         theta_before=_tuple(row["theta_before"]), theta_after=_tuple(row["theta_after"]),
         cost=row["cost"], J=row["J"], r=row["r"], r_z=row["r_z"], td_error=row["td_error"],
         kappa=row["kappa"], lr=row["lr"], state=json.loads(row["state"]), stamp_s=row["stamp_s"],
+        episodes=tuple(fed) or (row["episode_id"],),
     )
 
 
@@ -464,13 +480,35 @@ class Store:
         with self.transaction() as db:
             self._finish(db, episode_id, status, result, None, detail)
 
-    def record_success(self, episode_id: str, result: EpisodeResult, cost: float,
-                       update: UpdateRecord) -> None:
-        """Commit an ok episode AND its learner update in one transaction."""
-        if not result.ok or update.episode_id != episode_id:
-            raise StoreError("record_success needs an ok result and its own update")
+    def record_ok(self, episode_id: str, result: EpisodeResult, cost: float) -> None:
+        """Commit an ok episode whose update waits for the rest of its batch."""
+        if not result.ok:
+            raise StoreError("record_ok needs an ok result")
         with self.transaction() as db:
             self._finish(db, episode_id, "ok", result, float(cost), "")
+
+    def record_success(self, episode_id: str | None, result: EpisodeResult | None, cost: float | None,
+                       update: UpdateRecord) -> None:
+        """Commit an ok episode AND the learner update it completes, in one transaction.
+
+        ``update.episodes`` (default: ``episode_id`` alone) are the episodes that fed the
+        update, in idx order; ``update.episode_id`` is the last of them. Those other than
+        ``episode_id`` (a batch) must be committed ok already (:meth:`record_ok`).
+        ``episode_id`` None: every episode of the update is committed already (a resumed
+        daemon whose batch shrank with a smaller budget).
+        """
+        fed = update.episodes or (episode_id,)
+        if (episode_id is not None and (result is None or not result.ok or episode_id not in fed)) \
+                or update.episode_id != fed[-1]:
+            raise StoreError("record_success needs an ok result and its own update")
+        with self.transaction() as db:
+            if episode_id is not None:
+                self._finish(db, episode_id, "ok", result, float(cost), "")
+            for eid in fed:
+                cur = db.execute("UPDATE episodes SET update_idx = ? WHERE episode_id = ? AND run_id = ? "
+                                 "AND status = 'ok' AND update_idx IS NULL", (update.idx, eid, update.run_id))
+                if cur.rowcount != 1:
+                    raise StoreError(f"episode {eid!r} is not an ok episode awaiting update {update.idx}")
             db.execute(
                 "INSERT INTO updates VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (update.run_id, update.idx, update.episode_id, _vec(update.theta_before),
@@ -498,7 +536,8 @@ class Store:
         return [_episode(r) for r in rows]
 
     def ok_episodes(self, run_id: str) -> list[EpisodeRecord]:
-        """The run's ok episodes in idx order (idx 0, 1, 2, ...)."""
+        """The run's ok episodes in idx order (idx 0, 1, 2, ...; those of a batch whose
+        update is not committed yet have ``update_idx`` None)."""
         rows = self._query("SELECT * FROM episodes WHERE run_id = ? AND status = 'ok' ORDER BY idx",
                            (run_id,))
         return [_episode(r) for r in rows]
@@ -510,14 +549,23 @@ class Store:
 
     def updates(self, run_id: str) -> list[UpdateRecord]:
         rows = self._query("SELECT * FROM updates WHERE run_id = ? ORDER BY idx", (run_id,))
-        return [_update(r) for r in rows]
+        return [_update(r, self._fed(run_id, r["idx"])) for r in rows]
+
+    def _fed(self, run_id: str, update_idx: int) -> list[str]:
+        """The episode ids that fed update ``update_idx`` (none in a schema-2 read-only store)."""
+        try:
+            rows = self._query("SELECT episode_id FROM episodes WHERE run_id = ? AND update_idx = ? "
+                               "ORDER BY idx", (run_id, update_idx))
+        except sqlite3.OperationalError:  # read-only open of an older schema
+            return []
+        return [r[0] for r in rows]
 
     def update_count(self, run_id: str) -> int:
         return int(self._query("SELECT count(*) FROM updates WHERE run_id = ?", (run_id,))[0][0])
 
     def last_update(self, run_id: str) -> UpdateRecord | None:
         rows = self._query("SELECT * FROM updates WHERE run_id = ? ORDER BY idx DESC LIMIT 1", (run_id,))
-        return _update(rows[0]) if rows else None
+        return _update(rows[0], self._fed(run_id, rows[0]["idx"])) if rows else None
 
     # ------------------------------------------------------------------ changes
     def record_change(self, run_id: str, kind: str, value: Any, source: str,

@@ -13,7 +13,7 @@ while its spread grows. Faults: the first attempt of every episode whose seed is
 ``fault_every`` gets ``fault_pdo_timeout`` (deterministic in the request, so retries succeed).
 
 Run standalone: ``python tests/helpers/synthetic_agent.py --robot R --zenoh tcp/127.0.0.1:P
-[--delay S]``.
+[--delay S] [--fault-every N] [--refuse-above T]``.
 """
 from __future__ import annotations
 
@@ -72,14 +72,16 @@ class SyntheticAgent:
             reading: no critic can fit a neighbourhood that holds it).
         rogue: a forger: no liveliness tokens, every request answered at once with schema-valid
             zero costs.
+        announce: called with every request it starts to run.
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, delay_s: float = 0.0,
                  fault_every: int = 0, always_fault: bool = False,
                  refuse_above: float = math.inf, huge_cost_at: tuple[int, ...] = (),
-                 rogue: bool = False) -> None:
+                 rogue: bool = False, announce=None) -> None:  # noqa: ANN001
         self.keys = keys
         self.rogue = rogue
+        self.announce = announce
         self.huge_cost_at = set(huge_cost_at)
         self.refuse_above = refuse_above
         self.always_fault = always_fault
@@ -114,6 +116,8 @@ class SyntheticAgent:
             return
         try:
             self.requests.append(request)
+            if self.announce is not None:
+                self.announce(request)
             if self.delay_s and self._closed.wait(self.delay_s):
                 return  # closed while the episode ran
             attempt = int(request.episode_id.rsplit(".", 1)[-1]) if "." in request.episode_id else 0
@@ -155,12 +159,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--zenoh", required=True)
     parser.add_argument("--delay", type=float, default=0.0)
     parser.add_argument("--fault-every", type=int, default=0)
+    parser.add_argument("--refuse-above", type=float, default=math.inf)
     args = parser.parse_args(argv)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     session = open_session(make_config("client", connect=[args.zenoh], connect_timeout_s=10))
-    agent = SyntheticAgent(session, KeySpace(args.robot), args.delay, args.fault_every)
+    agent = SyntheticAgent(session, KeySpace(args.robot), args.delay, args.fault_every,
+                           refuse_above=args.refuse_above,
+                           announce=lambda r: print(f"running {r.episode_id}", flush=True))
     print("synthetic agent ready", flush=True)
     stop.wait()
     agent.close()

@@ -209,7 +209,7 @@ def test_a_critic_failure_mid_run_skips_updates_and_the_run_finishes(router, age
         if u.idx in {i for i, _ in skipped}:
             assert u.theta_after == u.theta_before and u.J is None
     assert "update skipped (critic fit failed" in out.getvalue()
-    assert engine.n_observations == 20 and len(engine.propose().theta) == 1
+    assert engine.n_observations == 20 and len(engine.propose()[0].theta) == 1
 
 
 def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path):

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ersac_hil.daemon.store import Store, StoreError, UpdateRecord
+from ersac_hil.daemon.store import SCHEMA_VERSION, Store, StoreError, UpdateRecord
 from protocol.zenoh import EpisodeResult, get_task
 
 SPEC = get_task("bracing")
@@ -227,7 +227,8 @@ def test_trace_names_are_stored_and_a_schema_1_store_is_migrated(tmp_path):
         store.create_run("r1", "ubot1", "bracing", 3, {"episodes": 2})
         eid = _ok_episode(store, "r1", 0, {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5})
     db = sqlite3.connect(path)  # what a schema-1 store looks like: no trace column
-    db.executescript("ALTER TABLE episodes DROP COLUMN trace; PRAGMA user_version = 1;")
+    db.executescript("ALTER TABLE episodes DROP COLUMN trace; ALTER TABLE episodes DROP COLUMN update_idx; "
+                     "PRAGMA user_version = 1;")
     db.close()
     with Store(path, readonly=True) as store:
         assert [e.trace for e in store.ok_episodes("r1")] == [""]
@@ -239,4 +240,58 @@ def test_trace_names_are_stored_and_a_schema_1_store_is_migrated(tmp_path):
         traced = EpisodeResult(eid, "bracing", "ok", terms, SPEC.total_cost(terms), trace=f"{eid}.blf")
         store.record_success(eid, traced, SPEC.total_cost(terms), _update("r1", 1, eid, 0.5, 0.52))
         assert [e.trace for e in store.ok_episodes("r1")] == ["", f"{eid}.blf"]
-    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == 2
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+
+
+def test_a_schema_2_store_is_migrated_in_place_and_keeps_everything(tmp_path):
+    """Schema 2 -> 3: every update of the time had one episode; ``update_idx`` is filled from
+    the updates, nothing else changes, and the run goes on with batches."""
+    path = tmp_path / "v2.db"
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5}
+    with Store(path) as store:
+        store.create_run("r1", "ubot1", "bracing", 3, {"episodes": 5})
+        eids = [_ok_episode(store, "r1", i, terms) for i in range(3)]
+        store.begin_attempt("r1", "r1.00003.0", 3, 0, (0.5,), (0.01,), (0.51,), 10)
+        store.record_failure("r1.00003.0", "timeout", "no reply")
+        before = (store.attempts("r1"), store.updates("r1"))
+    db = sqlite3.connect(path)  # what a schema-2 store looks like: no update_idx column
+    db.executescript("ALTER TABLE episodes DROP COLUMN update_idx; PRAGMA user_version = 2;")
+    db.close()
+    with Store(path, readonly=True) as store:  # read as it is
+        assert [e.update_idx for e in store.ok_episodes("r1")] == [None] * 3
+        assert [u.episodes for u in store.updates("r1")] == [(e,) for e in eids]
+    with Store(path) as store:  # migrated on a read-write open
+        assert (store.attempts("r1"), store.updates("r1")) == before
+        assert [e.update_idx for e in store.ok_episodes("r1")] == [0, 1, 2]
+        # the run goes on with a batch of two: two ok episodes, one update
+        for i in (4, 5):
+            eid = f"r1.{i:05d}.0"
+            store.begin_attempt("r1", eid, i, 0, (0.5,), (0.01,), (0.51,), 7 + i)
+        store.record_ok("r1.00004.0", _result("r1.00004.0", terms), 1.0)
+        update = dataclasses.replace(_update("r1", 3, "r1.00005.0", 0.5, 0.52),
+                                     episodes=("r1.00004.0", "r1.00005.0"))
+        store.record_success("r1.00005.0", _result("r1.00005.0", terms), 1.0, update)
+        assert store.updates("r1")[-1].episodes == ("r1.00004.0", "r1.00005.0")
+        assert [e.update_idx for e in store.ok_episodes("r1")] == [0, 1, 2, 3, 3]
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == 3
+
+
+def test_an_update_takes_only_ok_episodes_awaiting_it(store):
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5}
+    for i in range(3):
+        store.begin_attempt("run1", f"run1.{i:05d}.0", i, 0, (0.5,), (0.01,), (0.51,), 7 + i)
+    store.record_ok("run1.00000.0", _result("run1.00000.0", terms), 1.0)
+    bad = [("run1.00001.0", "run1.00002.0"),  # 00001 is still pending
+           ("run1.00000.0", "run1.00000.0", "run1.00002.0")]  # one episode twice
+    for fed in bad:
+        update = dataclasses.replace(_update("run1", 0, "run1.00002.0", 0.5, 0.52), episodes=fed)
+        with pytest.raises(StoreError):
+            store.record_success("run1.00002.0", _result("run1.00002.0", terms), 1.0, update)
+        assert store.updates("run1") == [] and [a.status for a in store.attempts("run1")] == ["ok", "pending", "pending"]
+    with pytest.raises(StoreError):  # the update's episode_id must be the last of its episodes
+        store.record_success("run1.00002.0", _result("run1.00002.0", terms), 1.0, dataclasses.replace(
+            _update("run1", 0, "run1.00000.0", 0.5, 0.52), episodes=("run1.00000.0", "run1.00002.0")))
+    update = dataclasses.replace(_update("run1", 0, "run1.00002.0", 0.5, 0.52),
+                                 episodes=("run1.00000.0", "run1.00002.0"))
+    store.record_success("run1.00002.0", _result("run1.00002.0", terms), 1.0, update)
+    assert [(a.status, a.update_idx) for a in store.attempts("run1")] == [("ok", 0), ("pending", None), ("ok", 0)]
