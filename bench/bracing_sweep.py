@@ -17,6 +17,10 @@ its bootstrap standard error. The bootstrap resamples seeds (paired across theta
 With ``--out DIR``: ``landscape.md`` (the table), ``landscape.json`` (everything, every
 episode's terms) and ``landscape.png`` (mean, mean +- 2 std band, damage rate).
 
+An episode that ends in a bus fault (e.g. a board that lost the agent's heartbeat while the
+machine was starved) is run again and listed (count, theta, seed, load average): it is not a
+measurement of the landscape.
+
 No pass/fail: figures only. One episode takes ~0.3-1 s of wall time. OPENBLAS_NUM_THREADS=1.
 """
 from __future__ import annotations
@@ -27,6 +31,7 @@ import os
 import sys
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -47,11 +52,25 @@ KAPPAS = (0.0, 1.0, 2.0)
 TERMS = TASKS["bracing"].term_names
 
 
-def sweep(thetas: list[float], episodes: int, first_seed: int = 0,
-          progress=print) -> dict[float, list[EpisodeResult]]:
-    """{theta: [result per seed]}; every result has status ok (else RuntimeError)."""
+@dataclass(frozen=True)
+class Rerun:
+    """An episode that ended in a bus fault (not a task outcome) and was run again."""
+    theta: float
+    seed: int
+    status: str
+    detail: str
+    load: float
+
+
+def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int = 3,
+          progress=print, reruns: list[Rerun] | None = None) -> dict[float, list[EpisodeResult]]:
+    """{theta: [result per seed]}; every result has status ok. An episode that ends in a bus
+    fault (``fault_*``: e.g. a board that lost the agent's heartbeat on a starved machine) is
+    recorded in ``reruns`` and run again, up to ``retries`` times (the episode is deterministic
+    for its seed, so the rerun is the episode that should have run); then RuntimeError."""
     config = BusConfig("virtual", f"sweep-{uuid.uuid4().hex[:8]}")
     out: dict[float, list[EpisodeResult]] = {}
+    reruns = [] if reruns is None else reruns
     t0 = time.perf_counter()
     with SimulatedRobot(config):
         bus = AgentBus(config).open()
@@ -61,8 +80,15 @@ def sweep(thetas: list[float], episodes: int, first_seed: int = 0,
             for i, theta in enumerate(thetas):
                 out[theta] = []
                 for seed in range(first_seed, first_seed + episodes):
-                    req = EpisodeRequest(f"sw-{uuid.uuid4().hex[:8]}", "bracing", (theta,), seed)
-                    r = runner.run(runner.plan(req))
+                    for attempt in range(retries + 1):
+                        req = EpisodeRequest(f"sw-{uuid.uuid4().hex[:8]}", "bracing", (theta,), seed)
+                        r = runner.run(runner.plan(req))
+                        if r.status == "ok" or not r.status.startswith("fault_") or attempt == retries:
+                            break
+                        reruns.append(Rerun(theta, seed, r.status, r.detail, os.getloadavg()[0]))
+                        progress(f"  theta {theta:.2f} seed {seed}: {r.status} ({r.detail}), load "
+                                 f"{os.getloadavg()[0]:.1f}: run again")
+                        bus.wait_for_nodes()
                     if r.status != "ok":
                         raise RuntimeError(f"theta {theta} seed {seed}: {r.status} {r.detail}")
                     out[theta].append(r)
@@ -104,7 +130,8 @@ def main() -> None:
     thetas = ([float(t) for t in args.thetas.split(",")] if args.thetas
               else [round(x, 6) for x in np.arange(0.0, 1.0 + 1e-9, args.step)])
     t0 = time.perf_counter()
-    results = sweep(thetas, args.episodes, args.first_seed)
+    reruns: list[Rerun] = []
+    results = sweep(thetas, args.episodes, args.first_seed, reruns=reruns)
     wall = time.perf_counter() - t0
     weights = TASKS["bracing"].default_weights
     print(f"bracing landscape: {len(thetas)} thetas x {args.episodes} seeds through the virtual-bus "
@@ -119,7 +146,8 @@ def main() -> None:
     print(land.markdown())
     n = len(thetas) * args.episodes
     print(f"{n} episodes in {wall:.0f} s ({wall / n:.2f} s per episode, load average "
-          f"{os.getloadavg()[0]:.1f})")
+          f"{os.getloadavg()[0]:.1f}); {len(reruns)} episode(s) ended in a bus fault and ran again"
+          + "".join(f"\n  theta {x.theta:.2f} seed {x.seed}: {x.status} at load {x.load:.1f}" for x in reruns))
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "landscape.md").write_text(land.markdown() + "\n")
@@ -127,7 +155,9 @@ def main() -> None:
         doc = {"episodes": args.episodes, "first_seed": args.first_seed, "weights": dict(weights),
                "rows": land.rows(),
                "argmin": {f"{k:g}": float(land.thetas[land.argmin(k)]) for k in KAPPAS},
-               "F2_gap": g, "F2_gap_se": se,
+               "F2_gap": g, "F2_gap_se": se, "wall_s": wall,
+               "reruns": [{"theta": x.theta, "seed": x.seed, "status": x.status, "detail": x.detail,
+                           "load": x.load} for x in reruns],
                "episodes_detail": {f"{t:.2f}": [{"seed": args.first_seed + i, "total_cost": r.total_cost,
                                                   "terms": dict(r.cost_terms),
                                                   "momentum": r.telemetry.get("truth_impact_momentum_ns")}

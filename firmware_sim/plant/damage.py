@@ -40,8 +40,8 @@ class CableSpec:
 
     pulley_radius: float = 0.02
     pretension: float = 40.0
-    breaking_tension: float = 1050.0
-    strength_cv: float = 0.10
+    breaking_tension: float = 960.0
+    strength_cv: float = 0.035
 
     def __post_init__(self) -> None:
         if not (self.pulley_radius > 0 and 0 <= self.pretension < self.breaking_tension

@@ -1,8 +1,8 @@
 """Bracing: the strike (momentum from the seed), the fall whatever the wheels do, and the
-stiffness trade-off at the ends of the agent's range (docs/robot_model.md section 9): soft arms
-collapse and the body strikes the floor (large angular-acceleration integral, never damage);
-stiff arms hold the body with a much smaller integral, but break the elbow cable for the larger
-impacts."""
+stiffness trade-off over the agent's range (docs/robot_model.md section 9): soft arms hold the
+body deep and never break the elbow cable; stiffer arms hold it with less energy, but from about
+three quarters of the range the cable breaks for the larger impacts, and at the stiff end for
+every impact."""
 from __future__ import annotations
 
 import math
@@ -16,8 +16,8 @@ from helpers.plant import Balancer, balance_gain
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 SEEDS = range(8)
-SOFT, STIFF = 20.0, 135.0
-"""N m/rad: the ends of the agent's bracing map (ersac_hil/agent/policies.py)."""
+SOFT, MID, STIFF = 20.0, 84.0, 135.0
+"""N m/rad: the ends of the agent's bracing map (ersac_hil/agent/policies.py) and theta 0.75."""
 DAMPING_TIME = 0.01
 """s: D = DAMPING_TIME * K, the agent's (and the boards' power-on) damping-to-stiffness ratio."""
 
@@ -95,31 +95,35 @@ def test_the_robot_falls_onto_its_arms_whatever_the_wheels_do(sim, gains, balanc
 
 def test_stiffness_trade_off_over_seeds(sim, gains):
     soft = [episode(sim, gains, s, stiffness=SOFT) for s in SEEDS]
+    mid = [episode(sim, gains, s, stiffness=MID) for s in SEEDS]
     stiff = [episode(sim, gains, s, stiffness=STIFF) for s in SEEDS]
-    print("\nseed momentum | soft: acc_sq E T_peak pitch damaged | stiff: acc_sq E T_peak pitch damaged")
-    for s, a, b in zip(SEEDS, soft, stiff):
-        print(f"{s} {a['momentum']:.2f} | {a['acc_sq']:.0f} {a['energy']:.1f} {a['peak_tension']:.0f} {a['pitch']:.2f}"
-              f" {a['damaged']} | {b['acc_sq']:.0f} {b['energy']:.1f} {b['peak_tension']:.0f} {b['pitch']:.2f} {b['damaged']}")
-    damaged = [r for r in stiff if r["damaged"]]
-    intact = [r for r in stiff if not r["damaged"]]
+    print("\nseed momentum | soft: acc_sq E T_peak pitch damaged | mid: ... | stiff: ...")
+    for s, *rs in zip(SEEDS, soft, mid, stiff):
+        print(f"{s} {rs[0]['momentum']:.2f} | " + " | ".join(
+            f"{r['acc_sq']:.0f} {r['energy']:.1f} {r['peak_tension']:.0f} {r['pitch']:.2f} {r['damaged']}"
+            for r in rs))
+    damaged = [r for r in mid if r["damaged"]]
+    intact = [r for r in mid if not r["damaged"]]
     assert not any(r["damaged"] for r in soft)            # soft arms never break the cable
-    assert 1 <= len(damaged) <= len(SEEDS) - 1            # stiff arms break it for some seeds
-    assert all(a["peak_tension"] < b["peak_tension"] for a, b in zip(soft, stiff))
+    assert 1 <= len(damaged) <= len(SEEDS) - 1            # theta 0.75 breaks it for some seeds
+    assert all(r["damaged"] for r in stiff)               # the stiff end for every seed
+    assert all(a["peak_tension"] < b["peak_tension"] < c["peak_tension"]
+               for a, b, c in zip(soft, mid, stiff) if not b["damaged"])
     # damage goes with the larger strikes
-    assert np.mean([r["momentum"] for r in damaged]) > np.mean([r["momentum"] for r in intact])
+    assert min(r["momentum"] for r in damaged) > max(r["momentum"] for r in intact)
     # soft arms hold the body, but deep: the arms deflect far, the body sinks lower and holding
-    # the deflected arms costs far more energy than on intact stiff arms; nothing hard touches
+    # the deflected arms costs far more energy than on intact stiffer arms; nothing hard touches
     # the floor (the collapse cliff lies below the agent's range)
     assert not any(r["body_down"] for r in soft)
     assert np.mean([r["pitch"] for r in soft]) > np.mean([r["pitch"] for r in intact]) + 0.2
     assert min(r["energy"] for r in soft) > max(r["energy"] for r in intact) + 10.0
-    # with the agent's weights the soft end costs more than intact stiff arms, and a break costs
+    # with the agent's weights the soft end costs more than intact stiffer arms, and a break costs
     # more than any intact catch: the arm goes limp and the body lands
     cost = lambda r: 10 * r["damaged"] + 0.1 * r["acc_sq"] + 5 * r["energy"]
     assert np.mean([cost(r) for r in soft]) > np.mean([cost(r) for r in intact]) + 50.0
-    assert min(cost(r) for r in damaged) > max(cost(r) for r in intact) + 10.0
+    assert min(cost(r) for r in damaged + stiff) > max(cost(r) for r in intact) + 10.0
     # each break is reported once, by the arm board of its side
-    for r in damaged:
+    for r in damaged + stiff:
         breaks = [e for e in r["events"] if e.kind == FailureKind.CABLE_BROKEN]
         assert 1 <= len(breaks) <= 2
         assert len({e.axis for e in breaks}) == len(breaks)

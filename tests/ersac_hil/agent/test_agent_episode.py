@@ -44,20 +44,20 @@ def run(runner, task, theta, seed=0, episode_id="ep"):
 def test_bracing_stiffness_changes_the_cost_and_stiff_arms_break_cables(rig):
     _, _, runner = rig
     results = {theta: [run(runner, "bracing", (theta,), seed) for seed in (0, 1, 2)]
-               for theta in (0.0, 1.0)}
+               for theta in (0.0, 0.35, 1.0)}
     for rs in results.values():
         assert all(r.status == "ok" and r.duration_s == pytest.approx(2.0) for r in rs)
         assert all(set(r.cost_terms) == {"damage", "body_acc_sq", "arm_power"} for r in rs)
     soft = [r.total_cost for r in results[0.0]]
-    stiff = [r.total_cost for r in results[1.0]]
+    firmer = [r.total_cost for r in results[0.35]]
     # soft arms hold the body deep (pitch beyond the 0.8 rad fall mark) on deflected,
-    # costly arms: costlier than stiff arms, cable or not
+    # costly arms: costlier than firmer arms that hold it intact
     assert all(r.failed("fallen") for r in results[0.0])
-    assert np.mean(soft) > np.mean(stiff) + 20.0
-    assert any(r.cost_terms["damage"] == 1.0 and r.failed("hardware_damage") for r in results[1.0])
-    assert not any(r.cost_terms["damage"] for r in results[0.0])
-    damaged = [r for r in results[1.0] if r.cost_terms["damage"]]
-    assert all(r.telemetry["truth_damaged"] == 1.0 for r in damaged)  # agrees with ground truth
+    assert np.mean(soft) > np.mean(firmer) + 20.0
+    assert not any(r.cost_terms["damage"] for r in results[0.0] + results[0.35])
+    # the stiff end of the map breaks an elbow cable (docs/robot_model.md section 9)
+    assert all(r.cost_terms["damage"] == 1.0 and r.failed("hardware_damage") for r in results[1.0])
+    assert all(r.telemetry["truth_damaged"] == 1.0 for r in results[1.0])  # agrees with ground truth
 
 
 def test_same_seed_same_theta_same_cost(rig):
