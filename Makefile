@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/critic.py --quick
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/episode.py
+	$(BIN)/python bench/fleet.py
 	$(BIN)/python bench/bracing_sweep.py
 	$(BIN)/python bench/fault_latency.py
 	$(BIN)/python bench/secure_session.py

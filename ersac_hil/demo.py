@@ -25,6 +25,10 @@ program can attach (e.g. ``ersac-hil state --zenoh-config OUT/certs/observer.jso
 ``--linger`` keeps the whole stack up after the report until Ctrl-C.
 ``--dashboard``: ``ersac-hil dashboard`` starts after the agent, before the daemon (so its page
 sees every episode), with the operator's identity under ``--secure``; its URL is printed.
+``--fleet N``: N simulator/agent pairs (robots R, R-2, ..., R-N, each pair on its own CAN
+channel) behind the one daemon (``--robot R --robot R-2 ...``), which evaluates ``--batch``
+perturbations per update in parallel (default N; ``--batch 1`` is the paper's algorithm, one
+episode at a time).
 """
 from __future__ import annotations
 
@@ -177,6 +181,8 @@ class DemoConfig:
         dashboard: also start ``ersac-hil dashboard`` and print its URL.
         dashboard_port: its port (0: a free one).
         can: CAN transport of the simulator/agent pair: ``zenoh`` or ``hub`` (see the module doc).
+        fleet: simulator/agent pairs behind the daemon.
+        batch: perturbations per update (``None``: ``fleet``).
     """
 
     task: str = "bracing"
@@ -194,6 +200,8 @@ class DemoConfig:
     dashboard: bool = False
     dashboard_port: int = 8050
     can: str = "zenoh"
+    fleet: int = 1
+    batch: int | None = None
 
 
 def cli_argv(*args: str) -> list[str]:
@@ -233,7 +241,10 @@ class Stack:
         say: progress lines.
         robot: the robot name every agent serves.
         seed: base seed of the simulators.
-        pairs: number of simulator/agent pairs (pair k > 1: prefix ``ersac<k>``).
+        pairs: number of simulator/agent pairs (pair k > 1: prefix ``ersac<k>``, or with
+            ``fleet`` robot ``<robot>-<k>`` under the one prefix ``ersac``).
+        fleet: name the pairs' robots apart under one prefix (a fleet behind one daemon)
+            instead of one robot under several prefixes (independent runs, ``reproduce``).
         secure: TLS with client certificates and the roles' access control
             (``ersac-hil certs init <logs>/../certs``); ``zenoh_args(role)`` gives each role's flags.
         router_host: loopback address the router listens on.
@@ -243,7 +254,8 @@ class Stack:
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
-                 router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "zenoh") -> None:
+                 router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "zenoh",
+                 fleet: bool = False) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -253,6 +265,7 @@ class Stack:
         self.endpoint = f"{'tls' if secure else 'tcp'}/{router_host}:{free_tcp_port(router_host)}"
         self.roles: dict[str, str] = {}
         self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
+        self._fleet = fleet
         self._can = "hub" if secure else can
         logs.mkdir(parents=True, exist_ok=True)
 
@@ -278,7 +291,8 @@ class Stack:
             r"Zenoh router: ", 20, self.stop)
         for k in range(1, self._n + 1):
             tag = "" if self._n == 1 else str(k)
-            prefix = "ersac" if k == 1 else f"ersac{k}"
+            prefix = "ersac" if k == 1 or self._fleet else f"ersac{k}"
+            robot = self.robot if k == 1 or not self._fleet else f"{self.robot}-{k}"
             if self._can == "hub":
                 hub_port = free_tcp_port()
                 channel = f"ws://127.0.0.1:{hub_port}/"
@@ -286,12 +300,12 @@ class Stack:
                     r"CAN hub: ws://", 20, self.stop)
                 bus = ["--bus-interface", "remote", "--bus-channel", channel]
             else:
-                channel = f"{prefix}-{self.robot}@{self.endpoint}"
+                channel = f"{prefix}-{robot}@{self.endpoint}"
                 bus = ["--bus-interface", "zenoh", "--bus-channel", channel]
             sim = self.launch(f"sim{tag}", cli_argv("sim", *bus, "--seed", str(self._seed + k - 1)))
-            agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", self.robot, "--prefix", prefix,
+            agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", robot, "--prefix", prefix,
                                                         *bus, *self.zenoh_args("agent", self._agent_host)))
-            self.pairs.append(Pair(self.robot, prefix, channel, sim, agent))
+            self.pairs.append(Pair(robot, prefix, channel, sim, agent))
         return self
 
     def check(self, children: Sequence[Child] | None = None) -> None:
@@ -324,28 +338,31 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         stale.unlink(missing_ok=True)
     started = time.monotonic()
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
-                  secure=config.secure, router_host=config.router_host, agent_host=config.agent_host,
-                  can=config.can)
+                  pairs=config.fleet, secure=config.secure, router_host=config.router_host,
+                  agent_host=config.agent_host, can=config.can, fleet=True)
+    batch = config.fleet if config.batch is None else config.batch
     code = 1
     try:
-        say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}"
+        fleet = f", fleet of {config.fleet}, batch {batch}" if config.fleet > 1 or batch > 1 else ""
+        say(f"demo: {config.task}, kappa {config.kappa:g}, {config.episodes} episodes, seed {config.seed}{fleet}"
             f"{', TLS + access control' if config.secure else ''}; logs in {stack.logs}")
         stack.start()
-        endpoint, (pair,) = stack.endpoint, stack.pairs
-        say(f"demo: router {endpoint}, CAN {pair.channel}")
+        endpoint, pair = stack.endpoint, stack.pairs[0]
+        say(f"demo: router {endpoint}, CAN {', '.join(p.channel for p in stack.pairs)}")
         if config.dashboard:
             url = stack.launch("dashboard", cli_argv(
                 "dashboard", "--robot", config.robot, *stack.zenoh_args("operator"),
                 "--port", str(config.dashboard_port))).wait_for(r"^dashboard: (http://\S+)", 30, stop)
             say(f"demo: dashboard {url.group(1)}")
         daemon = stack.launch("daemon", cli_argv(
-            "daemon", "--robot", config.robot, "--task", config.task, "--kappa", repr(config.kappa),
+            "daemon", *[a for p in stack.pairs for a in ("--robot", p.robot)], "--batch", str(batch),
+            "--task", config.task, "--kappa", repr(config.kappa),
             "--episodes", str(config.episodes), "--seed", str(config.seed),
             *stack.zenoh_args("daemon", config.daemon_host), "--db", str(db), "--new", "--agent-wait", "120",
             *(["--linger"] if config.linger else []), *config.extra_daemon_args),
             echo=lambda line: say(f"  {line}"))
         info = {"secure": config.secure, "router": endpoint, "robot": config.robot, "prefix": pair.prefix,
-                "can": pair.channel, "db": str(db), "ca": str(out / "certs" / "ca.crt") if stack.roles else None,
+                "can": pair.channel, "fleet": [{"robot": p.robot, "can": p.channel} for p in stack.pairs], "db": str(db), "ca": str(out / "certs" / "ca.crt") if stack.roles else None,
                 "configs": stack.roles, "pids": {c.name: c.pid for c in stack.children}}
         (out / "stack.json").write_text(json.dumps(info, indent=2) + "\n")
         say("demo: children " + " ".join(f"{c.name}={c.pid}" for c in stack.children))
@@ -400,7 +417,7 @@ def _demo(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import until_signal
     config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
                         secure=args.secure, linger=args.linger, dashboard=args.dashboard,
-                        dashboard_port=args.dashboard_port, can=args.can)
+                        dashboard_port=args.dashboard_port, can=args.can, fleet=args.fleet, batch=args.batch)
     return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
@@ -421,6 +438,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--can", choices=("zenoh", "hub"), default="zenoh",
                    help="CAN between simulator and agent: over Zenoh through the router (default) "
                         "or on a python-can-remote loopback hub (always with --secure)")
+    p.add_argument("--fleet", type=positive_int, default=1, metavar="N",
+                   help="simulator/agent pairs behind the one daemon (default 1)")
+    p.add_argument("--batch", type=positive_int, metavar="K",
+                   help="perturbations per update, run in parallel on the fleet (default: N; 1 = the paper's)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo, validate=_validate)
@@ -431,6 +452,7 @@ def _validate(args: argparse.Namespace) -> None:
     from ersac_hil.daemon.config import ConfigError, DaemonConfig
     try:
         DaemonConfig(robot=args.robot, task=args.task, kappa=args.kappa, episodes=args.episodes,
-                     seed=args.seed)
+                     seed=args.seed, batch=args.fleet if args.batch is None else args.batch,
+                     fleet=tuple(f"{args.robot}-{k}" for k in range(2, args.fleet + 1)))
     except ConfigError as exc:
         raise UsageError(str(exc)) from None

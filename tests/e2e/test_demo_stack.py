@@ -127,3 +127,36 @@ def test_ctrl_c_stops_every_child(tmp_path):
     assert proc.returncode == 130, output
     assert "interrupted" in output
     assert all(_gone(pid) for pid in _children(output).values()), output
+
+
+def _stored(db: Path):
+    with Store(db, readonly=True) as store:
+        (run,) = store.runs()
+        ok = store.ok_episodes(run.run_id)
+        idx_of = {e.episode_id: e.idx for e in ok}
+        return ([(e.idx, e.theta, e.seed, dict(e.cost_terms), e.update_idx) for e in ok],
+                [(u.idx, u.theta_before, u.theta_after, u.J, u.r, dict(u.state), [idx_of[i] for i in u.episodes])
+                 for u in store.updates(run.run_id)])
+
+
+def test_a_fleet_of_two_pairs_learns_exactly_what_one_pair_learns(tmp_path):
+    """``demo --fleet 2`` (two simulator/agent pairs, batch 2) against one pair with batch 2:
+    the same episodes and updates, bit for bit, whichever simulator ran which episode."""
+    runs = {}
+    for name, args in (("fleet", ("--fleet", "2")), ("single", ("--batch", "2"))):
+        out = tmp_path / name
+        proc = _demo(out, "--episodes", "4", "--seed", "6", *args)
+        try:
+            output, _ = proc.communicate(timeout=300)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert proc.returncode == 0, output
+        children = _children(output)
+        assert all(_gone(pid) for pid in children.values()), output
+        runs[name] = (output, children, _stored(out / "demo.db"))
+    output, children, (episodes, updates) = runs["fleet"]
+    assert {"sim1", "sim2", "agent1", "agent2", "daemon"} <= set(children)
+    assert re.search(r"on ubot1\b(?!-)", output) and "on ubot1-2" in output  # both pairs served
+    assert len(episodes) == 4 and [u[0] for u in updates] == [0, 1] and [u[-1] for u in updates] == [[0, 1], [2, 3]]
+    assert runs["single"][2] == (episodes, updates)
