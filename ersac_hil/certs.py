@@ -9,7 +9,7 @@ Files (the convention other tools rely on)::
     DIR/<role>.json5           ready Zenoh config of the role (TLS with client certificates;
                                the router's also holds the access control of ersac_hil.roles)
 
-for role in ``router``, ``daemon``, ``agent``, ``operator``, ``observer``. Use a config with
+for role in ``router``, ``daemon``, ``agent``, ``operator``, ``observer``, ``simulator``. Use a config with
 ``--zenoh-config DIR/<role>.json5`` on any command. :func:`role_of_config` tells the role of
 a config file (the common name of its client certificate).
 """

@@ -16,9 +16,10 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Sequence
 from typing import NoReturn
 
-from protocol.can.busconfig import BusConfig, BusConfigError, probe_bus, resolve_bus_config
+from protocol.can.busconfig import BusConfig, BusConfigError, parse_bus_kwargs, probe_bus, resolve_bus_config
 
 EXIT_USAGE = 2
 
@@ -90,12 +91,13 @@ def tcp_port(text: str) -> int:
     return value
 
 
-def usable_bus(interface: str | None, channel: str | None, bitrate: int | None) -> BusConfig:
-    """The bus configuration of the command line, resolved and opened once to see that it
-    works (``UsageError`` naming why not: no SocketCAN in the kernel, no such interface, no
-    hub listening, ...)."""
+def usable_bus(interface: str | None, channel: str | None, bitrate: int | None,
+               bus_kwargs: Sequence[str] | None = None) -> BusConfig:
+    """The bus configuration of the command line (``bus_kwargs``: ``--bus-kwargs KEY=VALUE``
+    items), resolved and opened once to see that it works (``UsageError`` naming why not: no
+    SocketCAN in the kernel, no such interface, no hub listening, ...)."""
     try:
-        config = resolve_bus_config(interface, channel, bitrate)
+        config = resolve_bus_config(interface, channel, bitrate, parse_bus_kwargs(bus_kwargs))
         probe_bus(config)
     except BusConfigError as exc:
         raise UsageError(str(exc)) from None

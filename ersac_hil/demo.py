@@ -10,10 +10,12 @@ and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
     daemon   ersac-hil daemon --robot R --task T --kappa K --episodes E --zenoh ... --db OUT/demo.db --new
 
 The CAN bus of each simulator/agent pair is CAN over Zenoh through the same router
-(``--can zenoh``, the default); ``--can hub`` (and ``--secure``, whose router admits only
-certified roles) puts it on a python-can-remote loopback hub (``ersac-hil bus --port H``) per
-pair instead. ``Stack`` starts and stops the router and the simulator/agent pairs (``ersac-hil reproduce``
-uses it too, with several pairs). The daemon's progress lines are shown as they come; every child's output is kept in
+(``--can zenoh``, the default; with ``--secure`` over TLS too, the simulator with the
+``simulator`` role's certificate and the agent with the agent's, ``--bus-kwargs
+zenoh_config=OUT/certs/<role>.json5``); ``--can hub`` puts it on a python-can-remote loopback
+hub (``ersac-hil bus --port H``) per pair instead. ``Stack`` starts and stops the router and
+the simulator/agent pairs (``ersac-hil reproduce`` uses it too, with several pairs). The
+daemon's progress lines are shown as they come; every child's output is kept in
 ``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
 written to ``OUT`` and its location printed.
 
@@ -219,7 +221,7 @@ def _env() -> dict[str, str]:
 
 @dataclass(frozen=True)
 class Pair:
-    """One simulator/agent pair on its own loopback CAN hub; its agent serves ``robot`` under
+    """One simulator/agent pair on its own CAN channel; its agent serves ``robot`` under
     the key prefix ``prefix`` (several pairs: one prefix each, so a run of robot ``robot``
     can go to any of them)."""
 
@@ -249,7 +251,8 @@ class Stack:
             (``ersac-hil certs init <logs>/../certs``); ``zenoh_args(role)`` gives each role's flags.
         router_host: loopback address the router listens on.
         agent_host: loopback source address of the agents' Zenoh links (``#bind=``).
-        can: ``zenoh`` (CAN over Zenoh through the router; not with ``secure``) or ``hub``.
+        can: ``zenoh`` (CAN over Zenoh through the router; with ``secure``, the simulator and
+            the agent on it with their roles' certificates) or ``hub``.
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
@@ -266,13 +269,22 @@ class Stack:
         self.roles: dict[str, str] = {}
         self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
         self._fleet = fleet
-        self._can = "hub" if secure else can
+        self._can = can
         logs.mkdir(parents=True, exist_ok=True)
 
     def zenoh_args(self, role: str, bind: str | None = None) -> list[str]:
         """``--zenoh`` (and with ``secure``, ``--zenoh-config``) of a child in ``role``."""
         ep = self.endpoint if bind is None or role == "router" else f"{self.endpoint}#bind={bind}:0"
         return ["--zenoh", ep, *(["--zenoh-config", self.roles[role]] if self.roles else [])]
+
+    def can_args(self, role: str, channel: str, bind: str | None = None) -> list[str]:
+        """The CAN-over-Zenoh bus flags of a child in ``role`` on ``channel`` (``name@endpoint``):
+        from ``bind`` if given, with the role's identity (``--bus-kwargs zenoh_config=``) if
+        ``secure``."""
+        if bind is not None:
+            channel = f"{channel}#bind={bind}:0"
+        identity = ["--bus-kwargs", f"zenoh_config={self.roles[role]}"] if self.roles else []
+        return ["--bus-interface", "zenoh", "--bus-channel", channel, *identity]
 
     def launch(self, name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
         child = Child(name, argv, self.logs, self.env, echo)
@@ -299,12 +311,14 @@ class Stack:
                 self.launch(f"hub{tag}", cli_argv("bus", "--port", str(hub_port))).wait_for(
                     r"CAN hub: ws://", 20, self.stop)
                 bus = ["--bus-interface", "remote", "--bus-channel", channel]
+                sim_bus = agent_bus = bus
             else:
                 channel = f"{prefix}-{robot}@{self.endpoint}"
-                bus = ["--bus-interface", "zenoh", "--bus-channel", channel]
-            sim = self.launch(f"sim{tag}", cli_argv("sim", *bus, "--seed", str(self._seed + k - 1)))
+                sim_bus, agent_bus = self.can_args("simulator", channel), self.can_args(
+                    "agent", channel, self._agent_host)
+            sim = self.launch(f"sim{tag}", cli_argv("sim", *sim_bus, "--seed", str(self._seed + k - 1)))
             agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", robot, "--prefix", prefix,
-                                                        *bus, *self.zenoh_args("agent", self._agent_host)))
+                                                        *agent_bus, *self.zenoh_args("agent", self._agent_host)))
             self.pairs.append(Pair(robot, prefix, channel, sim, agent))
         return self
 
@@ -436,8 +450,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dashboard-port", dest="dashboard_port", type=int, default=8050,
                    help="dashboard port (default 8050; 0 = a free one)")
     p.add_argument("--can", choices=("zenoh", "hub"), default="zenoh",
-                   help="CAN between simulator and agent: over Zenoh through the router (default) "
-                        "or on a python-can-remote loopback hub (always with --secure)")
+                   help="CAN between simulator and agent: over Zenoh through the router (default; "
+                        "with --secure over TLS with their roles' certificates) or on a "
+                        "python-can-remote loopback hub")
     p.add_argument("--fleet", type=positive_int, default=1, metavar="N",
                    help="simulator/agent pairs behind the one daemon (default 1)")
     p.add_argument("--batch", type=positive_int, metavar="K",

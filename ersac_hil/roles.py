@@ -20,7 +20,13 @@ operator   put ``learner/kappa``, ``learner/weights``, ``agent/go``; query ``lea
            ``learner/episodes``, ``learner/error``, ``episode/done``, ``agent/alive``
 observer   query ``learner/state`` and ``learner/critic``; read ``learner/episodes``,
            ``learner/error``, ``episode/done``, ``agent/alive``; nothing else
+simulator  the CAN bus only: send and receive frames on ``can/**`` (the CAN-over-Zenoh
+           channels, ``ersac_hil.canbus.zenoh_bus``), like the agent; nothing else
 =========  ===================================================================================
+
+The CAN bus between an agent and its robot (CAN over Zenoh) is the one key space outside
+``<prefix>/<robot>/``: ``can/<channel>``, sent and received by ``agent`` and ``simulator``
+(a simulated robot, or a gateway to a real one), by no other role.
 
 Everything else is denied: a denied put is dropped, a denied query gets no reply, a denied
 queryable or liveliness token is declared locally but nothing is ever routed to it. So only
@@ -32,10 +38,10 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "access_control"]
+__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "access_control"]
 
 #: Every role; the certificate common name of a role is its name.
-ROLES: tuple[str, ...] = ("router", "daemon", "agent", "operator", "observer")
+ROLES: tuple[str, ...] = ("router", "daemon", "agent", "operator", "observer", "simulator")
 #: Roles that connect to the router as Zenoh clients.
 CLIENT_ROLES: tuple[str, ...] = ROLES[1:]
 
@@ -50,6 +56,7 @@ _LIVELINESS_READ = ("declare_liveliness_subscriber", "liveliness_query")
 #: role -> flow -> [(message kinds, key suffixes under <prefix>/<robot>/)].
 PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]] = {
     "router": {"ingress": [], "egress": []},
+    "simulator": {"ingress": [], "egress": []},
     "daemon": {
         "ingress": [
             (("query",), (_RUN,)),
@@ -108,6 +115,13 @@ PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]]
 }
 
 
+#: The CAN-over-Zenoh channels (``ersac_hil.canbus.zenoh_bus``: key ``can/<channel>``).
+CAN_KEYS: tuple[str, ...] = ("can/**",)
+#: Roles on the CAN bus: each sends frames and receives the others' (both directions).
+CAN_ROLES: tuple[str, ...] = ("agent", "simulator")
+_CAN_MESSAGES = ("put", "declare_subscriber")
+
+
 def access_control(prefix: str = "ersac", robot: str = "*") -> dict[str, Any]:
     """The router's ``access_control`` section (Zenoh 1.10 schema) for the roles above.
 
@@ -127,6 +141,10 @@ def access_control(prefix: str = "ersac", robot: str = "*") -> dict[str, Any]:
                     "key_exprs": [f"{prefix}/{robot}/{suffix}" for suffix in suffixes],
                 })
                 ids.append(rule_id)
+        if role in CAN_ROLES:
+            rules.append({"id": f"{role}-can", "permission": "allow", "flows": ["ingress", "egress"],
+                          "messages": list(_CAN_MESSAGES), "key_exprs": list(CAN_KEYS)})
+            ids.append(f"{role}-can")
         if ids:
             policies.append({"id": f"{role}-policy", "rules": ids, "subjects": [role]})
     return {

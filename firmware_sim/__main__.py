@@ -32,6 +32,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bus-interface", help="python-can interface (virtual, remote, socketcan)")
     p.add_argument("--bus-channel", help="channel (ws://127.0.0.1:PORT/ for the loopback hub, vcan0, ...)")
     p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--bus-kwargs", dest="bus_kwargs", nargs="+", metavar="KEY=VALUE",
+                   help="further arguments of the python-can interface, e.g. zenoh_config=simulator.json5")
     p.add_argument("--seed", type=int, default=0, help="seed of the idle scenario at start")
     p.add_argument("--realtime", action="store_true", help="pace physics by the wall clock")
     p.add_argument("--control-period", type=float, default=0.005, help="s per SYNC (default 0.005)")
@@ -72,7 +74,7 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
     import math
     from pathlib import Path
 
-    from protocol.can.busconfig import BusConfigError, probe_bus, resolve_bus_config
+    from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, probe_bus, resolve_bus_config
 
     if not (math.isfinite(args.control_period) and 0 < args.control_period <= 1):
         parser.error(f"--control-period must be in (0, 1] s, got {args.control_period}")
@@ -87,7 +89,8 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
             parser.error(f"--snapshot: no directory {Path(args.snapshot).resolve().parent}")
         return None
     try:
-        config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
+        config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
+                                    parse_bus_kwargs(args.bus_kwargs))
         probe_bus(config)
     except BusConfigError as exc:
         parser.error(str(exc))

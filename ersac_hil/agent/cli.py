@@ -16,6 +16,8 @@ def register(subparsers) -> None:
     p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")
     p.add_argument("--bus-channel", help="vcan0 / can0 / ws://127.0.0.1:PORT/ ...")
     p.add_argument("--bitrate", type=positive_int, default=None)
+    p.add_argument("--bus-kwargs", dest="bus_kwargs", nargs="+", metavar="KEY=VALUE",
+                   help="further arguments of the python-can interface, e.g. zenoh_config=agent.json5")
     from ersac_hil.zenoh_session import add_zenoh_arguments
     add_zenoh_arguments(p)
     p.add_argument("--mode", choices=("client", "peer"), default="client",
@@ -40,17 +42,18 @@ def _validate(args: argparse.Namespace) -> None:
         KeySpace(args.robot, args.prefix)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    usable_bus(args.bus_interface, args.bus_channel, args.bitrate)
+    usable_bus(args.bus_interface, args.bus_channel, args.bitrate, args.bus_kwargs)
 
 
 def _run(args: argparse.Namespace) -> int:
     from ersac_hil.agent.bus import BusTiming
     from ersac_hil.agent.service import AgentConfig, AgentService
     from ersac_hil.lifecycle import serve
-    from protocol.can.busconfig import BusConfigError, resolve_bus_config
+    from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
 
     try:
-        bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate)
+        bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
+                                 parse_bus_kwargs(args.bus_kwargs))
         timing = BusTiming(period_s=args.period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
                            realtime=args.realtime)

@@ -9,9 +9,20 @@ them, across processes and machines (like a CAN-over-Ethernet gateway). Register
     can.Bus(interface="zenoh", channel="can0", connect="tcp/127.0.0.1:7447")
     can.Bus(interface="zenoh", channel="can0@tcp/127.0.0.1:7447")     # the same, one string
 
-Each bus is its own Zenoh client session (``ersac_hil.zenoh_session.make_config``, so the
-project's endpoint rules apply: explicit endpoints, no multicast scouting); it does not hear
-its own frames unless ``receive_own_messages=True``. Delivery is reliable and blocking
+Each bus is its own Zenoh client session, configured like every other session of the project
+(``ersac_hil.zenoh_session.resolve_config``: the endpoints of the channel, ``connect`` or the
+file, explicit endpoints, no multicast scouting, plain endpoints off loopback only with
+``insecure``). ``zenoh_config`` is a Zenoh json5 file (``--zenoh-config`` of the commands):
+TLS with a client certificate, so the bus runs through a secured router under a role's
+identity (``ersac-hil certs init`` writes one per role; its access control lets the ``agent``
+and ``simulator`` roles use the ``can/**`` keys)::
+
+    can.Bus(interface="zenoh", channel="can0@tls/127.0.0.1:7447", zenoh_config="certs/agent.json5")
+    can.Bus(interface="zenoh", channel="can0", zenoh_config="certs/simulator.json5")  # its router
+
+python-can's own configuration (``~/.canrc``, ``CAN_CONFIG``) and ``--bus-kwargs`` give these
+as strings; they are read like the keyword arguments. A bus does not hear its own frames
+unless ``receive_own_messages=True``. Delivery is reliable and blocking
 (congestion control ``BLOCK``, one priority, so frames are never dropped or reordered).
 Periodic sends use python-can's thread-based tasks (``modify_data`` works).
 
@@ -33,6 +44,7 @@ bytes.
 """
 from __future__ import annotations
 
+import json
 import queue
 import struct
 import time
@@ -43,7 +55,7 @@ import can
 import zenoh
 from can.bus import BusABC, CanProtocol
 
-from ersac_hil.zenoh_session import ZenohConfigError, make_config, open_session
+from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session, resolve_config
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
@@ -99,11 +111,13 @@ def decode_frame(payload: bytes, channel: str | None = None) -> can.Message:
     return frames[0]
 
 
-def parse_channel(channel: Any, connect: str | Sequence[str] | None = None) -> tuple[str, tuple[str, ...]]:
-    """``(channel name, endpoints)`` from ``"name"`` plus ``connect``, or ``"name@ep[,ep...]"``.
+def parse_channel(channel: Any, connect: str | Sequence[str] | None = None, *,
+                  need_endpoint: bool = True) -> tuple[str, tuple[str, ...]]:
+    """``(channel name, endpoints)`` from ``"name"`` plus ``connect``, or ``"name@ep[,ep...]"``;
+    no endpoint only without ``need_endpoint`` (a Zenoh config file gives them).
 
     Raises:
-        can.CanInterfaceNotImplementedError: never; ``ValueError`` for a bad channel.
+        ValueError: a bad channel name, or no endpoint where one is needed.
     """
     if not isinstance(channel, str) or not channel:
         raise ValueError(f"zenoh CAN channel must be a non-empty string, got {channel!r}")
@@ -115,10 +129,22 @@ def parse_channel(channel: Any, connect: str | Sequence[str] | None = None) -> t
         validate_chunk(name, "zenoh CAN channel name")
     except KeySpaceError as exc:
         raise ValueError(str(exc)) from None
-    if not endpoints:
-        raise ValueError(f"zenoh CAN channel {name!r}: no Zenoh endpoint (channel 'name@tcp/HOST:PORT' "
-                         "or connect=...)")
+    if need_endpoint and not endpoints:
+        raise ValueError(f"zenoh CAN channel {name!r}: no Zenoh endpoint (channel 'name@tcp/HOST:PORT', "
+                         "connect=... or zenoh_config=FILE)")
     return name, tuple(endpoints)
+
+
+def _flag(value: bool | str, name: str) -> bool:
+    """A boolean keyword argument, also as python-can's configuration gives it (a string)."""
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("1", "true", "yes", "on"):
+        return True
+    if text in ("0", "false", "no", "off", ""):
+        return False
+    raise ValueError(f"zenoh CAN bus: {name} must be true or false, got {value!r}")
 
 
 class ZenohBus(BusABC):
@@ -131,6 +157,9 @@ class ZenohBus(BusABC):
         receive_own_messages: also receive the frames this bus sends.
         mode: Zenoh session mode, ``client`` (default, through the router) or ``peer``.
         connect_timeout: s to keep trying the endpoints when opening.
+        zenoh_config: a Zenoh json5 configuration file (TLS certificates of a role...); its
+            endpoints are used when the channel and ``connect`` give none.
+        insecure: allow plain endpoints off loopback (``--insecure``).
         **kwargs: other python-can arguments (``bitrate``, ``can_filters``...); bit rate
             has no meaning here and is ignored.
 
@@ -140,21 +169,28 @@ class ZenohBus(BusABC):
 
     def __init__(self, channel: Any = None, can_filters=None, *, connect: str | Sequence[str] | None = None,  # noqa: ANN001
                  prefix: str = DEFAULT_PREFIX, receive_own_messages: bool = False,
-                 mode: str = "client", connect_timeout: float = 10.0, **kwargs: Any) -> None:
+                 mode: str = "client", connect_timeout: float = 10.0, zenoh_config: str | None = None,
+                 insecure: bool | str = False, **kwargs: Any) -> None:
         try:
-            name, endpoints = parse_channel(channel, connect)
-            config = make_config(mode, connect=list(endpoints), connect_timeout_s=float(connect_timeout))
+            name, endpoints = parse_channel(channel, connect, need_endpoint=not zenoh_config)
+            if mode not in ("client", "peer"):
+                raise ValueError(f"zenoh CAN bus mode must be client or peer, got {mode!r}")
+            insecure = _flag(insecure, "insecure")
+            options = ZenohOptions(endpoints, str(zenoh_config) if zenoh_config else None, insecure)
+            config = resolve_config(options, mode=mode, connect_timeout_s=float(connect_timeout))
             for chunk in str(prefix).split("/"):
                 validate_chunk(chunk, "zenoh CAN key prefix")
         except (ValueError, ZenohConfigError, KeySpaceError) as exc:
             raise can.CanInitializationError(str(exc)) from None
         self.key = f"{prefix}/{name}"
-        self.channel_info = f"CAN over Zenoh on {self.key} via {','.join(endpoints)}"
+        via = ",".join(json.loads(config.get_json("connect/endpoints")))
+        self.channel_info = f"CAN over Zenoh on {self.key} via {via}" + (
+            f" ({zenoh_config})" if zenoh_config else "")
         self._name = name
         self._rx: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
         self._push: PushNotifier | None = None
         try:
-            self._session = open_session(config)
+            self._session = open_session(config, insecure=insecure)
         except Exception as exc:  # noqa: BLE001 - ZenohSessionError and whatever zenoh raises
             raise can.CanInitializationError(f"{self.channel_info}: {exc}") from None
         origin = zenoh.Locality.ANY if receive_own_messages else zenoh.Locality.REMOTE

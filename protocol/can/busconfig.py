@@ -5,16 +5,23 @@ Backends are plain python-can configurations, never hard-wired:
 * ``socketcan`` on ``vcan0``/``can0`` where the kernel has SocketCAN (the real robot);
 * ``remote`` to a loopback hub (``ersac-hil bus``, python-can-remote on 127.0.0.1) on
   machines without SocketCAN, channel ``ws://127.0.0.1:PORT/``;
-* ``virtual`` for single-process tests.
+* ``virtual`` for single-process tests;
+* ``zenoh``: CAN over Zenoh (``ersac_hil.canbus.zenoh_bus``), channel ``name@tcp/127.0.0.1:PORT``;
+  ``zenoh_config=FILE`` (a role's TLS config) for a secured router.
 
 ``resolve_bus_config`` honours python-can's own resolution (``can.util.load_config``:
-environment ``CAN_INTERFACE``/``CAN_CHANNEL``/``CAN_BITRATE`` and ``~/.canrc``) for whatever
-the caller leaves unset. ``open_bus`` creates the bus object and nothing else: no threads are
-started here, the caller owns (and must ``shutdown()``) what it gets.
+environment ``CAN_INTERFACE``/``CAN_CHANNEL``/``CAN_BITRATE``/``CAN_CONFIG`` and ``~/.canrc``)
+for whatever the caller leaves unset; further keyword arguments of the interface come from
+there or from ``--bus-kwargs KEY=VALUE ...`` (python-can's own flag, :func:`parse_bus_kwargs`),
+and travel as strings in ``BusConfig.options``. ``open_bus`` creates the bus object and
+nothing else: no threads are started here, the caller owns (and must ``shutdown()``) what it
+gets.
 """
 from __future__ import annotations
 
 import ipaddress
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from urllib.parse import urlparse
 
@@ -70,11 +77,35 @@ def _check_loopback_url(url: str) -> None:
         raise BusConfigError(f"remote CAN hub must be on loopback, got host {host!r}")
 
 
+_BUS_KWARG = re.compile(r"(?P<key>[_a-zA-Z][_a-zA-Z0-9]*)=(?P<value>\S*)")
+_OWN_KEYS = ("interface", "channel", "bitrate")
+
+
+def parse_bus_kwargs(items: Sequence[str] | None) -> tuple[tuple[str, str], ...]:
+    """``["zenoh_config=a.json5", "insecure=true"]`` -> options of a :class:`BusConfig`
+    (python-can's ``--bus-kwargs`` syntax; values stay strings).
+
+    Raises:
+        BusConfigError: an item not of the form KEY=VALUE, or one that sets interface,
+            channel or bitrate (they have their own flags).
+    """
+    options: dict[str, str] = {}
+    for item in items or ():
+        match = _BUS_KWARG.fullmatch(item)
+        if match is None:
+            raise BusConfigError(f"--bus-kwargs: {item!r} is not KEY=VALUE")
+        if match["key"] in _OWN_KEYS:
+            raise BusConfigError(f"--bus-kwargs: set {match['key']} with --bus-{match['key']}, not here")
+        options[match["key"]] = match["value"]
+    return tuple(options.items())
+
+
 def resolve_bus_config(interface: str | None = None, channel: str | None = None,
-                       bitrate: int | None = None) -> BusConfig:
-    """Fill what the caller left ``None`` from python-can's configuration resolution."""
+                       bitrate: int | None = None, options: Sequence[tuple[str, str]] = ()) -> BusConfig:
+    """Fill what the caller left ``None`` from python-can's configuration resolution;
+    ``options`` (:func:`parse_bus_kwargs`) override the configured keyword arguments."""
     given = {k: v for k, v in (("interface", interface), ("channel", channel),
-                               ("bitrate", bitrate)) if v is not None}
+                               ("bitrate", bitrate)) if v is not None} | dict(options)
     try:
         resolved = can.util.load_config(config=given)
     except can.CanInterfaceNotImplementedError as exc:
@@ -82,8 +113,9 @@ def resolve_bus_config(interface: str | None = None, channel: str | None = None,
     if not resolved.get("interface") or resolved.get("channel") in (None, ""):
         raise BusConfigError("no CAN interface/channel given and none configured "
                              "(CAN_INTERFACE/CAN_CHANNEL or ~/.canrc)")
+    extra = tuple((k, str(v)) for k, v in resolved.items() if k not in _OWN_KEYS)
     return BusConfig(str(resolved["interface"]), str(resolved["channel"]),
-                     int(resolved.get("bitrate") or DEFAULT_BITRATE))
+                     int(resolved.get("bitrate") or DEFAULT_BITRATE), extra)
 
 
 def unavailable_reason(config: BusConfig, exc: Exception) -> str:

@@ -2,8 +2,9 @@
 
 One stack for the module (``ersac-hil demo --secure --linger`` code): the router listens on
 ``tls/127.0.0.2``, the daemon connects from 127.0.0.3 and the agent from 127.0.0.4 (loopback
-aliases, ``#bind=``), each with its role's certificate from ``certs init``; simulator and CAN
-hub as in the demo. The tests then attach as other identities from this process.
+aliases, ``#bind=``), each with its role's certificate from ``certs init``; the CAN bus
+between simulator and agent runs over the same TLS router, the simulator with the
+``simulator`` role's certificate, the agent (from 127.0.0.4 too) with its own. The tests then attach as other identities from this process.
 """
 from __future__ import annotations
 
@@ -112,7 +113,9 @@ def test_learns_over_tls_with_router_daemon_and_agent_on_different_addresses(sta
         run = store.runs()[-1]
         assert len(store.ok_episodes(run.run_id)) == EPISODES
     assert _peers(info["pids"]["daemon"], (ROUTER, port)) == {DAEMON}
-    assert _peers(info["pids"]["agent"], (ROUTER, port)) == {AGENT}
+    assert _peers(info["pids"]["agent"], (ROUTER, port)) == {AGENT}  # its Zenoh session and its CAN bus
+    assert info["can"].endswith(f"@{info['router']}")
+    assert _peers(info["pids"]["sim"], (ROUTER, port)) == {"127.0.0.1"}  # CAN over the TLS router
     assert any(f"{EPISODES} episodes in" in line for line in stack.lines)
 
 

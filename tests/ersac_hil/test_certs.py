@@ -67,6 +67,19 @@ def test_configs_resolve_with_tls_and_access_control(certs):
     assert json.loads(daemon.get_json("transport/link/tls/connect_certificate")).endswith("daemon.crt")
 
 
+def test_only_the_agent_and_the_simulator_are_on_the_can_bus():
+    rules = {r["id"]: r for r in access_control()["rules"]}
+    policies = {p["subjects"][0]: [rules[i] for i in p["rules"]] for p in access_control()["policies"]}
+
+    def allowed(role, flow, message):
+        return any(flow in r["flows"] and message in r["messages"] and "can/**" in r["key_exprs"]
+                   for r in policies.get(role, []))
+    for flow in ("ingress", "egress"):
+        for message in ("put", "declare_subscriber"):
+            assert [r for r in ROLES if allowed(r, flow, message)] == ["agent", "simulator"]
+    assert [r["key_exprs"] for r in policies["simulator"]] == [["can/**"]]  # nothing else
+
+
 def test_only_the_agent_may_serve_episodes_and_only_an_operator_steer():
     rules = {r["id"]: r for r in access_control()["rules"]}
     policies = {p["subjects"][0]: [rules[i] for i in p["rules"]] for p in access_control()["policies"]}

@@ -32,6 +32,8 @@ BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
      "not a valid key chunk"),
     (("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "remote",
       "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers"),
+    (("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "zenoh", "--bus-channel", "c",
+      "--bus-kwargs", "zenoh_config={tmp}/none.json5"), "no such file"),
     (("daemon", "--robot", "r", "--episodes", "0", "--zenoh", NO_ROUTER, "--db", "{tmp}/d.db"), "episodes"),
     (("daemon", "--robot", "r", "--kappa", "nan", "--zenoh", NO_ROUTER, "--db", "{tmp}/d.db"), "finite"),
     (("state", "--timeout", "0", "--zenoh", NO_ROUTER), "must be positive"),
@@ -58,6 +60,9 @@ SIM_BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
     (("--bus-interface", "virtual", "--bus-channel", "x", "--seed", "-1"), "must not be negative"),
     (("--bus-interface", "remote", "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers"),
     (("--bus-interface", "remote", "--bus-channel", "ws://10.0.0.1:9/"), "loopback"),
+    (("--bus-interface", "virtual", "--bus-channel", "x", "--bus-kwargs", "nonsense"), "is not KEY=VALUE"),
+    (("--bus-interface", "zenoh", "--bus-channel", "c@tcp/127.0.0.1:9", "--bus-kwargs", "insecure=maybe"),
+     "insecure must be true or false"),
 ]
 if SOCKETCAN_MISSING:  # the kernel without SocketCAN: say so, the way vcan_status() does
     reason = vcan_status("vcan0").reason

@@ -5,7 +5,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from protocol.can import cobid
-from protocol.can.busconfig import BusConfig, BusConfigError, resolve_bus_config
+from protocol.can.busconfig import BusConfig, BusConfigError, parse_bus_kwargs, resolve_bus_config
 from protocol.can.objects import POSITION, STIFFNESS, WHEEL_POSITION, Scale
 
 node_ids = st.integers(1, 127)
@@ -64,3 +64,19 @@ def test_multicast_backend_refused():
 def test_resolve_keeps_explicit_values():
     cfg = resolve_bus_config("remote", "ws://127.0.0.1:5000/", 500000)
     assert cfg == BusConfig("remote", "ws://127.0.0.1:5000/", 500000)
+
+
+def test_bus_kwargs_reach_the_interface_as_strings():
+    options = parse_bus_kwargs(["zenoh_config=/etc/agent.json5", "insecure=false", "insecure=true"])
+    assert options == (("zenoh_config", "/etc/agent.json5"), ("insecure", "true"))  # the last one wins
+    cfg = resolve_bus_config("zenoh", "c@tcp/127.0.0.1:7447", None, options)
+    kwargs = cfg.kwargs()  # python-can's resolution reads "true" as True: the interface gets "True"
+    assert kwargs["zenoh_config"] == "/etc/agent.json5" and kwargs["insecure"].lower() == "true"
+    assert (kwargs["interface"], kwargs["channel"]) == ("zenoh", "c@tcp/127.0.0.1:7447")
+
+
+@pytest.mark.parametrize("item, match", [("novalue", "not KEY=VALUE"), ("1x=2", "not KEY=VALUE"),
+                                         ("channel=can1", "--bus-channel")])
+def test_bad_bus_kwargs_are_refused(item, match):
+    with pytest.raises(BusConfigError, match=match):
+        parse_bus_kwargs([item])

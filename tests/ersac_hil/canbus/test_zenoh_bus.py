@@ -2,10 +2,12 @@
 
 The CiA 301 conformance suite and the agent tests also run on it (``can_backend`` "zenoh");
 here: the wire format, what python-can users rely on (entry point, order, own frames, filters,
-periodic tasks with modify_data), refusals, and a bus spanning two processes.
+periodic tasks with modify_data), refusals, a bus spanning two processes, and a bus through
+a secured router (TLS, the roles' certificates and access control).
 """
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -13,6 +15,7 @@ import uuid
 
 import can
 import pytest
+import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -156,6 +159,7 @@ def test_periodic_tasks_change_their_data(pair):
 
 @pytest.mark.parametrize("channel, match", [
     ("can0", "no Zenoh endpoint"),
+    ("can0@", "no Zenoh endpoint"),
     ("bad/name@tcp/127.0.0.1:7447", "not a valid key chunk"),
     ("can0@tcp/10.1.2.3:7447", "loopback"),
 ])
@@ -216,3 +220,61 @@ def test_pushed_frames_reach_listeners_in_order_until_stopped(pair):
     notifier.stop()
     a.send(can.Message(arbitration_id=0x300, data=b""))
     assert b.recv(TIMEOUT).arbitration_id == 0x300 and len(got) == 200  # queued for recv() again
+
+
+@pytest.fixture(scope="module")
+def secure_router(tmp_path_factory):
+    """A router as ``certs init`` configures it (TLS, client certificates, access control by
+    role) on a loopback address of its own; yields the certificate set."""
+    from ersac_hil.certs import init_certs
+    from ersac_hil.zenoh_session import EmbeddedRouter, ZenohOptions, free_tcp_port, resolve_config
+    certs = init_certs(tmp_path_factory.mktemp("certs"), router=(f"tls/127.0.0.7:{free_tcp_port('127.0.0.7')}",))
+    config = resolve_config(ZenohOptions(config_file=str(certs.configs["router"])), mode="router")
+    with EmbeddedRouter(config=config):
+        yield certs
+
+
+def _link(sender: can.BusABC, receiver: can.BusABC, arbitration_id: int) -> can.Message | None:
+    deadline = time.monotonic() + TIMEOUT
+    while time.monotonic() < deadline:
+        sender.send(can.Message(arbitration_id=arbitration_id, data=b"\x01"))
+        got = receiver.recv(0.05)
+        if got is not None:
+            return got
+    return None
+
+
+def test_agent_and_simulator_share_a_bus_over_tls_and_other_roles_are_kept_off(secure_router):
+    """The demo's --secure CAN bus: endpoints and identities from the roles' config files."""
+    channel = f"s-{uuid.uuid4().hex[:8]}"
+    buses = {role: can.Bus(interface="zenoh", channel=channel, zenoh_config=str(secure_router.configs[role]))
+             for role in ("agent", "simulator", "observer")}
+    try:
+        agent, simulator, observer = buses["agent"], buses["simulator"], buses["observer"]
+        assert "tls/127.0.0.7:" in agent.channel_info
+        assert _link(simulator, agent, 0x181) is not None and _link(agent, simulator, 0x201) is not None
+        for _ in range(20):
+            observer.send(can.Message(arbitration_id=0x7, data=b"\x00"))  # dropped by the router
+        simulator.send(can.Message(arbitration_id=0x182, data=b"\x02"))
+        heard = [m.arbitration_id for m in iter(lambda: agent.recv(1.0), None)]
+        assert 0x182 in heard and 0x7 not in heard
+        assert observer.recv(0.2) is None  # nor does it hear the bus
+    finally:
+        for bus in buses.values():
+            bus.shutdown()
+
+
+def test_a_plain_channel_cannot_reach_the_secured_router(secure_router):
+    endpoint = json.loads(zenoh.Config.from_file(str(secure_router.configs["agent"])).get_json("connect/endpoints"))[0]
+    with pytest.raises(can.CanInitializationError):
+        can.Bus(interface="zenoh", channel=f"c@tcp/{endpoint.split('/', 1)[1]}", connect_timeout=0.5)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"zenoh_config": "/nonexistent/agent.json5"}, "no such file"),
+    ({"insecure": "maybe"}, "insecure must be true or false"),
+    ({"mode": "router"}, "client or peer"),
+])
+def test_bad_session_arguments_are_refused(kwargs, match):
+    with pytest.raises(can.CanInitializationError, match=match):
+        can.Bus(interface="zenoh", channel="c@tcp/127.0.0.1:7447", **kwargs)
