@@ -71,15 +71,21 @@ def _demo(out: Path, *args: str) -> subprocess.Popen:
         start_new_session=True)
 
 
-def test_demo_learns_a_few_episodes_and_reports(tmp_path):
-    out = tmp_path / "report"
-    proc = _demo(out, "--episodes", "3", "--seed", "4", "--kappa", "2")
+def _demo_output(out: Path, *args: str, timeout_s: float) -> str:
+    """Run a demo to its end (killed if it outlives ``timeout_s``); it must succeed."""
+    proc = _demo(out, *args)
     try:
-        output, _ = proc.communicate(timeout=240)
+        output, _ = proc.communicate(timeout=timeout_s)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, output
+    return output
+
+
+def test_demo_learns_a_few_episodes_and_reports(tmp_path):
+    out = tmp_path / "report"
+    output = _demo_output(out, "--episodes", "3", "--seed", "4", "--kappa", "2", timeout_s=240)
     children = _children(output)
     assert set(children) == {"router", "sim", "agent", "daemon"}  # CAN over Zenoh: no hub
     assert all(_gone(pid) for pid in children.values()), output
@@ -145,13 +151,7 @@ def test_a_fleet_of_two_pairs_learns_exactly_what_one_pair_learns(tmp_path):
     runs = {}
     for name, args in (("fleet", ("--fleet", "2")), ("single", ("--batch", "2"))):
         out = tmp_path / name
-        proc = _demo(out, "--episodes", "4", "--seed", "6", *args)
-        try:
-            output, _ = proc.communicate(timeout=300)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-        assert proc.returncode == 0, output
+        output = _demo_output(out, "--episodes", "4", "--seed", "6", *args, timeout_s=300)
         children = _children(output)
         assert all(_gone(pid) for pid in children.values()), output
         runs[name] = (output, children, _stored(out / "demo.db"))
