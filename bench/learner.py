@@ -45,6 +45,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from ersac_hil.critic import GP, VHGP, CriticConfig  # noqa: E402  (GP: also MV-BO's model)
 from ersac_hil.critic._blas import blas_description  # noqa: E402
 from ersac_hil.critic.datasets import branin, branin_std, goldberg, rahbo_sine_cost, rahbo_sine_std  # noqa: E402
+from ersac_hil.critic.datasets import jump_cost_mean, jump_cost_sample, jump_cost_std  # noqa: E402
 from ersac_hil.learner import ERSAC  # noqa: E402
 from ersac_hil.learner.ersac import MAX_STEP  # noqa: E402
 
@@ -72,6 +73,8 @@ class Problem:
     min_observations: int
     max_neighbours: int = 60
     scale: float | None = None  # normaliser of F's gap (default: F's range over the box)
+    # cost samples at x (d,): k draws (k None: one float); default J + r N(0, 1)
+    sample: Callable[[np.ndarray, np.random.Generator, int | None], np.ndarray | float] | None = None
 
     @property
     def d(self) -> int:
@@ -79,6 +82,14 @@ class Problem:
 
     def F(self, X: np.ndarray, kappa: float) -> np.ndarray:
         return self.J(X) + kappa * self.r(X)
+
+    def draw(self, x: np.ndarray, noise: np.random.Generator, k: int | None = None) -> np.ndarray | float:
+        """Noisy costs at x (d,): one float (k None) or (k,) draws."""
+        if self.sample is not None:
+            return self.sample(x, noise, k)
+        if k is None:
+            return float(self.J(x[None])[0] + self.r(x[None])[0] * noise.standard_normal())
+        return self.J(x[None])[0] + self.r(x[None])[0] * noise.standard_normal(k)
 
     def grad_r(self, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
         return np.array([(self.r((x + h * e)[None])[0] - self.r((x - h * e)[None])[0]) / (2 * h) for e in np.eye(self.d)])
@@ -118,6 +129,7 @@ def _r7(X: np.ndarray) -> np.ndarray:
     return 0.05 + (_B7 * (X - _C7) ** 2).sum(1)
 
 
+
 PROBLEMS = {
     # J falls with theta on [0, 0.8] while the noise std rises (bracing: stiffer arms cost
     # less on average but vary more).  kappa=0 -> 0.80, kappa=2 -> 0.31, kappa=-1 -> 1.
@@ -135,7 +147,16 @@ PROBLEMS = {
     # range over the box (~310) would put every basin "within 5 %", so the gap is scaled by 10.
     "branin": Problem("branin", np.array([[-5.0, 10.0], [0.0, 15.0]]), np.array([2.5, 7.5]), branin, branin_std,
                       budget=200, sigma=0.5, eta=0.1, epsilon=2.0, min_neighbours=20, min_observations=10, scale=10.0),
+    # the bracing task's paper settings (sigma 0.05, eta 0.7, epsilon 0.2, 45 episodes from 0.2, the
+    # critic's default neighbourhood sizes) on a cost with a Bernoulli jump (critic.datasets.jump_cost_sample)
+    "bracing-jump": Problem("bracing-jump", np.array([[0.0, 1.0]]), np.array([0.2]), jump_cost_mean, jump_cost_std,
+                            budget=45, sigma=0.05, eta=0.7, epsilon=0.2, min_neighbours=10, min_observations=10,
+                            sample=lambda x, noise, k: _one_or_k(jump_cost_sample(np.repeat(x[None], k or 1, 0), noise), k)),
 }
+
+
+def _one_or_k(v: np.ndarray, k: int | None) -> np.ndarray | float:
+    return float(v[0]) if k is None else v
 
 
 def true_optimum(p: Problem, kappa: float) -> tuple[np.ndarray, float, float]:
@@ -166,18 +187,21 @@ def run_ersac(p: Problem, kappa: float, seed: int, interleave: int = 0,
               critic=CriticConfig(epsilon=p.epsilon, min_neighbours=p.min_neighbours, max_neighbours=p.max_neighbours))
     noise = np.random.default_rng(10_000 + seed)
     traj = np.empty((p.budget, p.d))
-    moves = []
+    moves, r_ratios = [], []
     for e in range(p.budget):
         x = L.ask()
-        u = L.tell(x, float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal()))
+        u = L.tell(x, p.draw(x, noise))
         if not u.warmup and not u.offline:
             moves.append(float(np.max(np.abs(u.theta_after - u.theta_before) / L.sigma)))
+        if u.r_tilde is not None:
+            r_ratios.append(u.r_tilde / float(p.r(u.theta_before[None])[0]))
         traj[e] = L.theta
     th = L.theta
     est = L.critic_estimate(th)
     gr = p.grad_r(th)
     info = {
         "r_ratio": est.r / float(p.r(th[None])[0]),
+        "r_ratio_updates": float(np.median(r_ratios)) if r_ratios else float("nan"),
         "slope_ratio": float(est.grad_r @ gr / (gr @ gr)) if gr @ gr > 1e-12 else float("nan"),
         "J_err": est.J - float(p.J(th[None])[0]),
         "max_move": max(moves, default=0.0),
@@ -192,6 +216,11 @@ def run_ersac_interleaved(p: Problem, kappa: float, seed: int) -> tuple[np.ndarr
     return run_ersac(p, kappa, seed, interleave=INTERLEAVE, max_step=MAX_STEP)
 
 
+def run_ersac_guarded(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
+    """The paper's Algorithm 1 with the default move guard (MAX_STEP sigma), as the daemon runs it."""
+    return run_ersac(p, kappa, seed, max_step=MAX_STEP)
+
+
 def run_sgd(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, float]]:
     """Risk-neutral likelihood-ratio SGD: theta <- theta - alpha (J^ - b) z with b and s a
     running mean and std of J^ (rate 0.2) and alpha = clip(eta / s, 0.01, 0.5): ERSAC's step
@@ -202,7 +231,7 @@ def run_sgd(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, 
     lo, hi = p.bounds[:, 0], p.bounds[:, 1]
     for e in range(p.budget):
         x = np.clip(th + p.sigma * rng.standard_normal(p.d), lo, hi)
-        j = float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal())
+        j = p.draw(x, noise)
         if b is None:
             b, v = j, (0.1 * abs(j) + 1e-6) ** 2
         alpha = float(np.clip(p.eta / math.sqrt(v), 0.01, 0.5))
@@ -214,7 +243,7 @@ def run_sgd(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, 
 
 
 def _estimate(p: Problem, x: np.ndarray, kappa: float, noise: np.random.Generator) -> float:
-    js = p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal(REPEATS)
+    js = p.draw(x, noise, REPEATS)
     return float(js.mean() + kappa * js.std(ddof=1))
 
 
@@ -298,7 +327,7 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
         e += n
         if n < REPEATS:
             break
-        js = p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal(REPEATS)
+        js = p.draw(x, noise, REPEATS)
         U.append(u)
         M.append(float(js.mean()))
         S.append(max(float(js.std(ddof=1)), 1e-9))
@@ -312,6 +341,7 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
 METHODS = {
     "ERSAC": run_ersac,
     "ERSAC-i": run_ersac_interleaved,
+    "ERSAC-g": run_ersac_guarded,
     "SGD": run_sgd,
     "CMA-ES": run_cma,
     "random": run_random,
@@ -329,7 +359,7 @@ def _job(args: tuple[str, str, float, int]) -> tuple[str, str, float, int, int |
         hit = np.flatnonzero(gap <= TOL)
         out = np.flatnonzero(gap > SETTLE)
         settled = None if gap[-1] > SETTLE else (int(out[-1]) + 2 if out.size else 1)
-        info = {**info, "settled": settled}
+        info = {**info, "settled": settled, "theta_T": traj[-1].tolist()}
         return pname, mname, kappa, seed, (int(hit[0]) + 1 if hit.size else None), float(gap[-1]), info
 
 
@@ -343,13 +373,23 @@ def _median_time(fn: Callable[[], object], reps: int) -> float:
     return float(np.median(ts))
 
 
+def _timed(fn: Callable[[], object]) -> tuple[float, float]:
+    """(wall, CPU) seconds of one call.  CPU time (this process only; BLAS runs on one thread)
+    is what the ratios use: on a shared machine the wall time of a 20-50 ms fit depends on
+    what else runs in that instant."""
+    w, c = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - w, time.process_time() - c
+
+
 def timing(quick: bool) -> None:
-    print(f"\n## VHGP fit / predict time (1-D Goldberg-type data; median of reps, the GP, cold and warm fits "
-          f"interleaved in each rep; load average {os.getloadavg()[0]:.1f})")
+    print(f"\n## VHGP fit / predict time (1-D Goldberg-type data; the GP, cold and warm fits interleaved in each "
+          f"rep; ratios are medians over reps of the CPU-time ratio within a rep; load average {os.getloadavg()[0]:.1f})")
     print("targets at n = 100: cold <= 2x GP, warm <= 1x GP (the same data, the same run)")
-    print(f"{'n':>5} {'GP fit':>9} {'VHGP cold':>10} {'evals':>6} {'VHGP warm':>10} {'evals':>6} {'cold/GP':>8} "
+    print(f"{'n':>5} {'GP fit':>14} {'VHGP cold':>15} {'evals':>6} {'VHGP warm':>15} {'evals':>6} {'cold/GP':>8} "
           f"{'warm/GP':>8} {'predict 100':>12}")
-    reps = 3 if quick else 9
+    print(f"{'':>5} {'CPU (wall)':>14} {'CPU (wall)':>15} {'':>6} {'CPU (wall)':>15}")
+    reps = 5 if quick else 21
     with threadpool_limits(1, user_api="blas"):
         for n in (25, 50, 100, 200):
             data = goldberg(np.random.default_rng(n), n=n + 1)
@@ -358,16 +398,16 @@ def timing(quick: bool) -> None:
             # the critic's case: one observation replaced (lambda kept for shared points)
             ws = type(prev)(np.concatenate([prev.log_lambda[1:], [math.log(0.5)]]), prev.kernel)
             cold, warm = VHGP(), VHGP()
-            t_gp, t_cold, t_warm = [], [], []
-            for _ in range(reps):
-                t_gp.append(_median_time(lambda: GP().fit(X[:n], y[:n]), 1))
-                t_cold.append(_median_time(lambda: cold.fit(X[:n], y[:n]), 1))
-                t_warm.append(_median_time(lambda: warm.fit(X[1:], y[1:], warm_start=ws), 1))
-            g, c, w = (float(np.median(t)) for t in (t_gp, t_cold, t_warm))
+            t = np.array([[_timed(lambda: GP().fit(X[:n], y[:n])), _timed(lambda: cold.fit(X[:n], y[:n])),
+                           _timed(lambda: warm.fit(X[1:], y[1:], warm_start=ws))] for _ in range(reps)])  # (reps, 3, 2)
+            wall, cpu = np.median(t[:, :, 0], 0), np.median(t[:, :, 1], 0)
+            rc, rw = np.median(t[:, 1, 1] / t[:, 0, 1]), np.median(t[:, 2, 1] / t[:, 0, 1])
             Xs = np.linspace(0, 1, 100)[:, None]
             t_pred = _median_time(lambda: cold.predict(Xs), 20)
-            print(f"{n:5d} {g*1e3:7.1f}ms {c*1e3:8.1f}ms {cold.n_evaluations:6d} {w*1e3:8.1f}ms {warm.n_evaluations:6d} "
-                  f"{c/g:7.1f}x {w/g:7.1f}x {t_pred*1e3:10.2f}ms")
+            cell = lambda i: f"{cpu[i]*1e3:5.1f} ({wall[i]*1e3:5.1f})ms"  # noqa: E731
+            print(f"{n:5d} {cell(0):>14} {cell(1):>15} {cold.n_evaluations:6d} {cell(2):>15} {warm.n_evaluations:6d} "
+                  f"{rc:7.2f}x {rw:7.2f}x {t_pred*1e3:10.2f}ms")
+    print(f"load average after the fits {os.getloadavg()[0]:.1f}")
 
     print("\n## Offline selection time (after an ERSAC run; first call fits the selection model)")
     with threadpool_limits(1, user_api="blas"):
@@ -379,7 +419,7 @@ def timing(quick: bool) -> None:
             noise = np.random.default_rng(1)
             for _ in range(n_ep):
                 x = L.ask()
-                L.tell(x, float(p.J(x[None])[0] + p.r(x[None])[0] * noise.standard_normal()))
+                L.tell(x, p.draw(x, noise))
             t = time.perf_counter()
             s = L.select(2.0)
             t_first = time.perf_counter() - t
@@ -443,6 +483,19 @@ def report(results: list, problems: list[str], methods: list[str]) -> None:
                 cells.append(f"{_fmt([s for s, _ in rows], p.budget):>20} {np.median([g for _, g in rows])*100:6.1f}%")
             print(f"{pn:>10} {k:5.0f} | " + " | ".join(cells))
 
+    one_d = [pn for pn in problems if PROBLEMS[pn].d == 1]
+    if one_d:
+        print("\n## Final theta of the 1-D problems (median [IQR]; n within 0.1 of theta*/seeds)")
+        for pn in one_d:
+            for k in KAPPAS:
+                ts = float(true_optimum(PROBLEMS[pn], k)[0][0])
+                cells = []
+                for m in methods:
+                    th = np.array([i["theta_T"][0] for (a, b, c, _, _, _, i) in results if (a, b, c) == (pn, m, k)])
+                    q1, med, q3 = np.percentile(th, [25, 50, 75])
+                    cells.append(f"{med:.2f} [{q1:.2f}-{q3:.2f}] {int(np.sum(np.abs(th - ts) <= 0.1))}/{th.size}")
+                print(f"{pn:>12} kappa={k:g} theta*={ts:.2f}: " + " | ".join(f"{m} {c}" for m, c in zip(methods, cells)))
+
     peers = [m for m in methods if not m.startswith("ERSAC")]
     if peers and {"ERSAC", "ERSAC-i"} <= set(methods):
         print("\n## Targets (median settling episodes, never = inf): ERSAC-i <= best peer / 2; ERSAC (paper) <= best "
@@ -468,7 +521,7 @@ def report(results: list, problems: list[str], methods: list[str]) -> None:
                 infos = [i for (a, b, c, _, _, _, i) in results if a == pn and b == m and c == k]
                 arr = lambda f: np.array([i[f] for i in infos], dtype=float)  # noqa: E731
                 mv = arr("max_move")
-                print(f"{m:>7} {pn:>10} kappa={k:g}: r~/r {q(arr('r_ratio'))}  slope {q(arr('slope_ratio'))}  "
+                print(f"{m:>7} {pn:>10} kappa={k:g}: r~/r {q(arr('r_ratio'))} (updates {q(arr('r_ratio_updates'))})  slope {q(arr('slope_ratio'))}  "
                       f"J~-J {q(arr('J_err'))}  max move {np.median(mv):.1f} (max {mv.max():.1f}) sigma, "
                       f"{100 * np.mean(arr('moves_over_3')):.1f} % > 3 sigma, skipped {int(arr('skipped').sum())}")
 
@@ -484,7 +537,7 @@ def main() -> None:
     args = ap.parse_args()
     seeds = args.seeds or (4 if args.quick else 20)
     problems = args.problems.split(",") if args.problems else ["1d-bracing", "rahbo-sine"] if args.quick else list(PROBLEMS)
-    methods = args.methods.split(",") if args.methods else list(METHODS)
+    methods = args.methods.split(",") if args.methods else [m for m in METHODS if m != "ERSAC-g"]
     for name, known in [(n, PROBLEMS) for n in problems] + [(n, METHODS) for n in methods]:
         if name not in known:
             ap.error(f"unknown {name!r}; known: {', '.join(known)}")

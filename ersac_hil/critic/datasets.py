@@ -95,3 +95,33 @@ def branin(X: np.ndarray) -> np.ndarray:
 def branin_std(X: np.ndarray, s: float = 1.0) -> np.ndarray:
     """(sigmoid(2 (x1 - 3.2)) s + 0.2)(sigmoid(2 x2) s + 0.2). X (m, 2)."""
     return (sigmoid(2.0 * (X[:, 0] - 3.2)) * s + 0.2) * (sigmoid(2.0 * X[:, 1]) * s + 0.2)
+
+
+# A bracing-shaped cost with a Bernoulli jump (the shape of the bracing task's landscape): the
+# mean falls with theta, damage adds DAMAGE_COST with a probability that ramps (piecewise
+# linear) from 0 at 0.35 to 0.17 at 0.7 and 0.8 at 0.85, on top of Gaussian noise of std
+# JUMP_BASE_STD.  argmin of the mean 0.70, of the mean + 2 std 0.35.  X (m, 1) on [0, 1].
+DAMAGE_COST = 90.0
+JUMP_BASE_STD = 5.0
+
+
+def damage_probability(t: np.ndarray) -> np.ndarray:
+    return np.interp(t, [0.0, 0.35, 0.7, 0.85, 1.0], [0.0, 0.0, 0.17, 0.8, 0.95])
+
+
+def jump_cost_mean(X: np.ndarray) -> np.ndarray:
+    """100 - 120 t + DAMAGE_COST p(t)."""
+    return 100.0 - 120.0 * X[:, 0] + DAMAGE_COST * damage_probability(X[:, 0])
+
+
+def jump_cost_std(X: np.ndarray) -> np.ndarray:
+    """sqrt(JUMP_BASE_STD^2 + DAMAGE_COST^2 p (1 - p))."""
+    q = damage_probability(X[:, 0])
+    return np.sqrt(JUMP_BASE_STD**2 + DAMAGE_COST**2 * q * (1.0 - q))
+
+
+def jump_cost_sample(X: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One noisy cost per row of X (m, 1): (m,)."""
+    t = X[:, 0]
+    base = 100.0 - 120.0 * t + JUMP_BASE_STD * rng.standard_normal(t.size)
+    return base + DAMAGE_COST * (rng.uniform(size=t.size) < damage_probability(t))

@@ -98,8 +98,8 @@ class CriticConfig:
     epsilon: float
     min_neighbours: int = 10
     max_neighbours: int = 60
-    cold_iter: int = 100
-    warm_iter: int = 40
+    cold_iter: int = 12
+    warm_iter: int = 6
     fixed_hyperparameters: VHGPHyperparameters | None = None
     g_variance_min: float = 1.0
     g_lengthscale_max: float = 2.0

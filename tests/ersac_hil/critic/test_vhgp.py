@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.critic import GP, VHGP, CriticInputError, NotFittedError, VHGPHyperparameters, VHGPParams, vhgp_bound
 from ersac_hil.critic.datasets import goldberg, williams, yuan
+from ersac_hil.critic.bound import evaluate, newton_step
 from ersac_hil.critic.gp import gp_log_likelihood
 
 
@@ -64,6 +65,54 @@ def test_bound_at_stationary_lambda_satisfies_fixed_point() -> None:
     ys = (data.y - data.y.mean()) / data.y.std()
     _, g = vhgp_bound(p, data.X, ys)
     assert np.max(np.abs(g[:n])) < 1e-2
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), d=st.integers(1, 3), n=st.integers(3, 25))
+def test_newton_step_is_an_ascent_direction(seed: int, d: int, n: int) -> None:
+    """The Gauss-Newton step in (lambda, mu0) has a positive directional derivative equal to
+    its decrement, and a short step along it raises the bound."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(size=(n, d))
+    y = rng.standard_normal(n)
+    p = np.concatenate([rng.normal(-0.5, 1.0, n), np.log(rng.uniform(0.2, 1.5, d)), [rng.normal(0, 0.5)],
+                        np.log(rng.uniform(0.2, 1.5, d)), [rng.normal(0, 0.5)], [rng.normal(-1.0, 1.0)]])
+    st_ = evaluate(p, X, y)
+    assert st_ is not None
+    step = newton_step(st_, y)
+    assert step is not None
+    _, g = vhgp_bound(p, X, y)
+    lam = np.exp(p[:n])
+    slope = float(g[:n] @ (step.d_lambda / lam) + g[-1] * step.d_mu0)  # g is in log lambda
+    assert slope == pytest.approx(step.decrement, rel=1e-5, abs=1e-9)
+    assert step.decrement >= 0
+    t = 1e-4 / max(1.0, float(np.max(np.abs(step.d_lambda / lam))), abs(step.d_mu0))
+    q = p.copy()
+    q[:n] = np.log(lam + t * step.d_lambda)
+    q[-1] += t * step.d_mu0
+    assert vhgp_bound(q, X, y, grad="none")[0] >= st_.F
+
+
+def test_newton_steps_reach_the_lambda_optimum() -> None:
+    """Fixed-hyperparameter mode (Newton steps only) ends where lambda = b + 1/2, at a bound
+    no lower than a long L-BFGS-B run on log lambda reaches."""
+    data = goldberg(np.random.default_rng(6))
+    fixed = VHGPHyperparameters((0.2,), 4.0, (0.3,), 2.0, math.log(0.3))
+    m = VHGP(fixed_hyperparameters=fixed, newton_tol=1e-9, max_iter=50).fit(data.X, data.y)
+    n = data.x.size
+    ys = (data.y - data.y.mean()) / data.y.std()
+    p = np.concatenate([m.params.log_lambda, m.params.kernel])
+    _, g = vhgp_bound(p, data.X, ys)
+    assert np.max(np.abs(g[:n])) < 1e-3
+    from scipy.optimize import minimize
+
+    def neg(q: np.ndarray) -> tuple[float, np.ndarray]:
+        v, gr = vhgp_bound(np.concatenate([q, p[n:]]), data.X, ys, grad="lambda")
+        return -v, -gr[:n]
+
+    res = minimize(neg, np.full(n, math.log(0.5)), jac=True, method="L-BFGS-B",
+                   options={"maxiter": 2000, "ftol": 1e-14, "gtol": 1e-9})
+    assert vhgp_bound(p, data.X, ys, grad="none")[0] >= -res.fun - 1e-6
 
 
 @pytest.mark.parametrize(
