@@ -27,7 +27,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import can
@@ -259,14 +260,8 @@ class AgentBus:
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
         raw = scale.to_raw(value) if scale is not None else int(value)
-        try:
+        with _sdo_errors(name, index, subindex, value):
             self.nodes[name].sdo.download(index, subindex, var.encode_raw(raw))
-        except SdoAbortedError as exc:
-            raise ConfigRefused(name, index, subindex, value, exc.code) from exc
-        except SdoCommunicationError as exc:
-            raise SdoTimeout(f"{name} 0x{index:04X}:{subindex}: {exc}") from exc
-        except (can.CanError, OSError) as exc:
-            raise BusDown(f"SDO to {name} not sent: {exc}") from exc
         return raw
 
     def read(self, device: Device | str, index: int, subindex: int = 0,
@@ -274,14 +269,8 @@ class AgentBus:
         """Upload ``index:subindex`` of ``device`` (SI with ``scale``, else raw)."""
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
-        try:
+        with _sdo_errors(name, index, subindex, None):
             raw = var.decode_raw(self.nodes[name].sdo.upload(index, subindex))
-        except SdoAbortedError as exc:
-            raise ConfigRefused(name, index, subindex, None, exc.code) from exc
-        except SdoCommunicationError as exc:
-            raise SdoTimeout(f"{name} 0x{index:04X}:{subindex}: {exc}") from exc
-        except (can.CanError, OSError) as exc:
-            raise BusDown(f"SDO to {name} not sent: {exc}") from exc
         return scale.from_raw(raw) if scale is not None else raw
 
     # -- the SYNC cycle ---------------------------------------------------------------------
@@ -374,6 +363,20 @@ class AgentBus:
             self.net.check()
         except Exception as exc:
             raise BusDown(f"CAN receive thread stopped: {exc}") from exc
+
+
+@contextmanager
+def _sdo_errors(name: str, index: int, subindex: int, value: float | None) -> Iterator[None]:
+    """An SDO transfer's failures as the agent's errors: the node's abort (``ConfigRefused``
+    with its code), no answer (``SdoTimeout``), a bus that cannot send (``BusDown``)."""
+    try:
+        yield
+    except SdoAbortedError as exc:
+        raise ConfigRefused(name, index, subindex, value, exc.code) from exc
+    except SdoCommunicationError as exc:
+        raise SdoTimeout(f"{name} 0x{index:04X}:{subindex}: {exc}") from exc
+    except (can.CanError, OSError) as exc:
+        raise BusDown(f"SDO to {name} not sent: {exc}") from exc
 
 
 def _name(device: Device | str) -> str:

@@ -12,12 +12,12 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from ersac_hil.daemon.store import Store
+from helpers.processes import children, gone, group_killed_on_exit, lines_until
 from protocol.zenoh import get_task
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -46,24 +46,6 @@ def _stack_available():
         pytest.skip(reason)
 
 
-def _children(output: str) -> dict[str, int]:
-    match = re.search(r"^demo: children (.*)$", output, re.M)
-    assert match, output
-    return {name: int(pid) for name, pid in (item.split("=") for item in match.group(1).split())}
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    # a zombie is gone for our purpose only if it is not ours to reap; check its state
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
-    except OSError:
-        return True
-
-
 def _demo(out: Path, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "ersac_hil.cli", "demo", "--out", str(out), *args],
@@ -73,12 +55,8 @@ def _demo(out: Path, *args: str) -> subprocess.Popen:
 
 def _demo_output(out: Path, *args: str, timeout_s: float) -> str:
     """Run a demo to its end (killed if it outlives ``timeout_s``); it must succeed."""
-    proc = _demo(out, *args)
-    try:
+    with group_killed_on_exit(_demo(out, *args)) as proc:
         output, _ = proc.communicate(timeout=timeout_s)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, output
     return output
 
@@ -86,9 +64,9 @@ def _demo_output(out: Path, *args: str, timeout_s: float) -> str:
 def test_demo_learns_a_few_episodes_and_reports(tmp_path):
     out = tmp_path / "report"
     output = _demo_output(out, "--episodes", "3", "--seed", "4", "--kappa", "2", timeout_s=240)
-    children = _children(output)
-    assert set(children) == {"router", "sim", "agent", "daemon"}  # CAN over Zenoh: no hub
-    assert all(_gone(pid) for pid in children.values()), output
+    started = children(output)
+    assert set(started) == {"router", "sim", "agent", "daemon"}  # CAN over Zenoh: no hub
+    assert all(gone(pid) for pid in started.values()), output
     assert "episode    3/3" in output and f"report in {out}" in output
     assert re.search(r"3 episodes in \d+ s \(learning [\d.]+ s", output)
 
@@ -114,25 +92,14 @@ def test_demo_learns_a_few_episodes_and_reports(tmp_path):
 
 
 def test_ctrl_c_stops_every_child(tmp_path):
-    proc = _demo(tmp_path / "report", "--episodes", "40", "--seed", "5")
-    lines: list[str] = []
-    try:
-        deadline = time.monotonic() + 180
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if "episode    1/40" in line:
-                break
-            assert time.monotonic() < deadline, "".join(lines)
+    with group_killed_on_exit(_demo(tmp_path / "report", "--episodes", "40", "--seed", "5")) as proc:
+        lines = lines_until(proc, r"episode    1/40", 180)
         proc.send_signal(signal.SIGINT)
         rest, _ = proc.communicate(timeout=60)  # a hang fails here
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     output = "".join(lines) + rest
     assert proc.returncode == 130, output
     assert "interrupted" in output
-    assert all(_gone(pid) for pid in _children(output).values()), output
+    assert all(gone(pid) for pid in children(output).values()), output
 
 
 def _stored(db: Path):
@@ -152,11 +119,11 @@ def test_a_fleet_of_two_pairs_learns_exactly_what_one_pair_learns(tmp_path):
     for name, args in (("fleet", ("--fleet", "2")), ("single", ("--batch", "2"))):
         out = tmp_path / name
         output = _demo_output(out, "--episodes", "4", "--seed", "6", *args, timeout_s=300)
-        children = _children(output)
-        assert all(_gone(pid) for pid in children.values()), output
-        runs[name] = (output, children, _stored(out / "demo.db"))
-    output, children, (episodes, updates) = runs["fleet"]
-    assert {"sim1", "sim2", "agent1", "agent2", "daemon"} <= set(children)
+        started = children(output)
+        assert all(gone(pid) for pid in started.values()), output
+        runs[name] = (output, started, _stored(out / "demo.db"))
+    output, started, (episodes, updates) = runs["fleet"]
+    assert {"sim1", "sim2", "agent1", "agent2", "daemon"} <= set(started)
     assert re.search(r"on ubot1\b(?!-)", output) and "on ubot1-2" in output  # both pairs served
     assert len(episodes) == 4 and [u[0] for u in updates] == [0, 1] and [u[-1] for u in updates] == [[0, 1], [2, 3]]
     assert runs["single"][2] == (episodes, updates)

@@ -9,12 +9,12 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from ersac_hil.daemon.store import Store
+from helpers.processes import children, gone, group_killed_on_exit, lines_until
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -43,42 +43,19 @@ def _ours(out: Path) -> list[int]:
     return pids
 
 
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
-    except OSError:
-        return False
-
-
 def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
     out = tmp_path / "results"
-    proc = _reproduce(out)
-    lines: list[str] = []
-    try:
-        assert proc.stdout is not None
-        deadline = time.monotonic() + 180
-        for line in proc.stdout:  # wait until a few episodes are stored
-            lines.append(line)
-            if re.search(r"\] ([3-9]|\d\d)/\d+ episodes", line):
-                break
-            assert time.monotonic() < deadline, "".join(lines)
+    with group_killed_on_exit(_reproduce(out)) as proc:
+        lines = lines_until(proc, r"\] ([3-9]|\d\d)/\d+ episodes", 180)  # a few episodes are stored
         proc.send_signal(signal.SIGINT)
         rest, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     first = "".join(lines) + rest
     assert proc.returncode == 130 and "interrupted" in first, first
-    children = dict(item.split("=") for item in re.search(r"children (.*)$", first, re.M).group(1).split())
-    assert not [p for p in map(int, children.values()) if _alive(p)] and not _ours(out), first
+    assert all(gone(pid) for pid in children(first).values()) and not _ours(out), first
     stored = int(re.findall(r"\] (\d+)/\d+ episodes", first)[-1])
 
-    proc = _reproduce(out)
-    try:
+    with group_killed_on_exit(_reproduce(out)) as proc:
         second, _ = proc.communicate(timeout=240)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, second
     match = re.search(r"(\d+) episodes to have \((\d+) already stored\)", second)
     assert match and int(match.group(2)) >= stored > 0, second

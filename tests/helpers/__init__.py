@@ -7,6 +7,7 @@ declare fixtures and are never imported.
 * ``can_nodes``       - the reference nodes (static CiA 301 nodes from the EDS files), a test-side
                         CANopen master, a frame counter, the SDO barrier, actions at a SYNC
 * ``plant``           - balancing the simulated plant without the agent (scenario tests)
+* ``processes``       - end-to-end child processes: output up to a line, stopped, nothing left
 * ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)
 * ``webclient``       - HTTP requests and a server-sent-events reader for the dashboard tests
 """
