@@ -9,5 +9,6 @@ declare fixtures and are never imported.
 * ``plant``           - balancing the simulated plant without the agent (scenario tests)
 * ``processes``       - end-to-end child processes: output up to a line, stopped, nothing left
 * ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)
+* ``timing``          - patient agent and controller timing for tests that are not about it
 * ``webclient``       - HTTP requests and a server-sent-events reader for the dashboard tests
 """

@@ -14,6 +14,7 @@ from ersac_hil.agent.tasks import BracingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import at_sync
+from helpers.timing import PATIENT, patient_controllers
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Scenario
 from protocol.zenoh import EpisodeRequest
@@ -30,8 +31,10 @@ def new_config() -> BusConfig:
 def rig():
     config = new_config()
     robot = SimulatedRobot(config)
-    bus = AgentBus(config).open()
+    bus = AgentBus(config, timing=PATIENT).open()
     bus.wait_for_nodes()
+    patient_controllers(bus.nodes.values())
+    assert {n.consumer_timeout() for n in robot.nodes.values()} == {PATIENT.heartbeat_timeout_s}
     yield robot, bus, EpisodeRunner(bus)
     bus.close()
     robot.close()

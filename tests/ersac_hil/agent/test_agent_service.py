@@ -16,8 +16,11 @@ import pytest
 from ersac_hil.agent.service import AgentConfig, AgentService
 from ersac_hil.canbus import LoopbackHub
 from ersac_hil.zenoh_session import EmbeddedRouter
+from helpers.can_nodes import Master
+from helpers.timing import PATIENT_AGENT_FLAGS, patient_controllers
 from helpers.waiting import wait_until
 from protocol.can import cobid
+from protocol.can.devices import DEVICES
 from protocol.can.busconfig import open_bus
 from protocol.zenoh import EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, KeySpace
 
@@ -79,9 +82,14 @@ class Stack:
         self.hub = LoopbackHub()
         self.router = EmbeddedRouter().start()
         self.sim = start_sim(self.hub)
+        master = Master(self.hub.bus_config, DEVICES)
+        try:
+            patient_controllers(master.nodes.values())
+        finally:
+            master.close()
         self.agent = subprocess.Popen(
             [sys.executable, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT, "--bus-interface",
-             "remote", "--bus-channel", self.hub.url, "--zenoh", self.router.endpoint],
+             "remote", "--bus-channel", self.hub.url, "--zenoh", self.router.endpoint, *PATIENT_AGENT_FLAGS],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         line = self.agent.stdout.readline()
         assert line.startswith("agent ready"), line + self.agent.stderr.read()
