@@ -25,6 +25,7 @@ from protocol.can import cobid
 from protocol.can.devices import DEVICES, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network
 
+from helpers.timing import patient_sdo
 from helpers.waiting import DEFAULT_TIMEOUT_S
 
 Frame = tuple[int, bytes]
@@ -58,6 +59,7 @@ class Master:
         self.devices = {d.name: d for d in devices}
         self.nodes = {d.name: self.network.add_node(d.node_id, object_dictionary(d))
                       for d in self.devices.values()}
+        patient_sdo(self.nodes.values())  # an answer late on a loaded machine is still an answer
 
     def close(self) -> None:
         self.network.disconnect()

@@ -24,6 +24,12 @@ PATIENT_CONSUMER = AGENT_NODE_ID << 16 | PATIENCE_MS
 """Object 0x1016 sub 1: the controllers tolerate this much silence of the agent's heartbeat."""
 
 
+def patient_sdo(nodes: Iterable[canopen.RemoteNode]) -> None:
+    """SDO clients that wait ``PATIENCE_MS`` for an answer (canopen's default is 0.3 s)."""
+    for node in nodes:
+        node.sdo.RESPONSE_TIMEOUT = PATIENCE_MS / 1000
+
+
 def patient_controllers(nodes: Iterable[canopen.RemoteNode]) -> None:
     """Write ``PATIENT_CONSUMER`` into every node's consumer heartbeat time by SDO."""
     for node in nodes:

@@ -14,7 +14,7 @@ from ersac_hil.agent.tasks import BracingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import at_sync
-from helpers.timing import PATIENT, patient_controllers
+from helpers.timing import PATIENT, patient_controllers, patient_sdo
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Scenario
 from protocol.zenoh import EpisodeRequest
@@ -33,6 +33,7 @@ def rig():
     robot = SimulatedRobot(config)
     bus = AgentBus(config, timing=PATIENT).open()
     bus.wait_for_nodes()
+    patient_sdo(bus.nodes.values())
     patient_controllers(bus.nodes.values())
     assert {n.consumer_timeout() for n in robot.nodes.values()} == {PATIENT.heartbeat_timeout_s}
     yield robot, bus, EpisodeRunner(bus)
