@@ -6,7 +6,9 @@ import pytest
 
 from ersac_hil.agent.bus import AgentBus
 from helpers.can_nodes import ReferenceNodes
+from helpers.timing import PATIENT_CONSUMER
 from protocol.can.devices import DEVICES
+from protocol.can.objects import Index
 
 
 @pytest.fixture
@@ -29,6 +31,8 @@ def make_reference_nodes():
 @pytest.fixture
 def reference_nodes(can_backend):
     nodes = ReferenceNodes(can_backend)
+    for node in nodes.nodes.values():  # a stalled agent heartbeat is not what these tests test
+        node.set_value(Index.CONSUMER_HEARTBEAT, 1, PATIENT_CONSUMER)
     yield nodes
     nodes.close()
 

@@ -15,7 +15,8 @@ from helpers.can_nodes import heartbeats
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can import objects as obj
-from protocol.can.devices import ARM_LEFT, ARM_RIGHT, DEVICES, IMU, TORSO, WHEELS
+from protocol.can.devices import (AGENT_NODE_ID, ARM_LEFT, ARM_RIGHT, DEVICES, HEARTBEAT_PERIOD_MS, IMU,
+                                  TORSO, WHEELS)
 from protocol.can.objects import Control, EmcyCode, Index, Status
 from protocol.can.sdo import AbortCode
 
@@ -123,13 +124,22 @@ def test_emcy_collected_with_device_and_cycle(agent_bus, reference_nodes):
     assert agent_bus.emcy_events(since=1) == []
 
 
-def test_controllers_enter_safe_state_when_agent_heartbeat_stops(agent_bus):
+WATCHDOG_MS = 1000
+"""The controllers' consumer time in the watchdog test: four times the default (250 ms), so a
+loaded machine stalling the agent's heartbeat thread for a few hundred ms does not trip it."""
+
+
+def test_controllers_enter_safe_state_when_agent_heartbeat_stops(agent_bus, reference_nodes):
+    for device in ACTUATED:
+        reference_nodes.nodes[device.name].set_value(Index.CONSUMER_HEARTBEAT, 1,
+                                                     AGENT_NODE_ID << 16 | WATCHDOG_MS)
     agent_bus.nmt_start()
     agent_bus.cycle()
-    # while the agent's heartbeat runs, every controller beats past its consumer time (250 ms)
+    # while the agent's heartbeat runs, every controller beats past its consumer time
     beats = heartbeats(agent_bus.net, ACTUATED)
-    beats.wait_for(lambda frames: all(beats.count(cobid.heartbeat(d.node_id)) >= 4 for d in ACTUATED),
-                   what="four heartbeats of every controller")
+    beats.wait_for(lambda frames: all(beats.count(cobid.heartbeat(d.node_id)) >= WATCHDOG_MS // HEARTBEAT_PERIOD_MS + 2
+                                      for d in ACTUATED),
+                   what="heartbeats of every controller for longer than the consumer time")
     beats.close()
     agent_bus.read(ARM_RIGHT, Index.STATUS)  # SDO barrier: EMCYs sent before it have arrived
     assert not [e for e in agent_bus.emcy_events() if e.code == EmcyCode.HEARTBEAT_LOST]
