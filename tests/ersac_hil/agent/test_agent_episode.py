@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import uuid
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from ersac_hil.agent.bus import AgentBus, BusTiming
+from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.configure import reset_scenario
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
@@ -159,10 +160,12 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
 
 
 def test_realtime_episode_paces_sync_by_the_wall_clock():
-    config = new_config()
+    config = new_config()  # patient: a loaded machine's late TPDO is not what this test is about
     with SimulatedRobot(config, realtime=True) as robot, \
-            AgentBus(config, timing=BusTiming(realtime=True)) as bus:
+            AgentBus(config, timing=replace(PATIENT, realtime=True)) as bus:
         bus.wait_for_nodes()
+        patient_sdo(bus.nodes.values())
+        patient_controllers(bus.nodes.values())
         runner = EpisodeRunner(bus)
         r = run(runner, "bracing", (0.5,), seed=1)
     assert r.status == "ok" and r.telemetry["n_cycles"] == 400
