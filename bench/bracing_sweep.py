@@ -62,7 +62,20 @@ class Rerun:
     load: float
 
 
-def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int = 3,
+def settle(bus: AgentBus, quiet_s: float = 1.0, deadline_s: float = 30.0) -> None:
+    """After a bus fault: wait until every node is back and no EMCY has come for ``quiet_s``
+    (each board reports a lost heartbeat on its own timer; a late one would otherwise land in
+    the next episode and fail it too), at most ``deadline_s``."""
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        n = bus.emcy_count
+        time.sleep(quiet_s)
+        if bus.emcy_count == n:
+            break
+    bus.wait_for_nodes()
+
+
+def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int = 5,
           progress=print, reruns: list[Rerun] | None = None) -> dict[float, list[EpisodeResult]]:
     """{theta: [result per seed]}; every result has status ok. An episode that ends in a bus
     fault (``fault_*``: e.g. a board that lost the agent's heartbeat on a starved machine) is
@@ -88,7 +101,7 @@ def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int 
                         reruns.append(Rerun(theta, seed, r.status, r.detail, os.getloadavg()[0]))
                         progress(f"  theta {theta:.2f} seed {seed}: {r.status} ({r.detail}), load "
                                  f"{os.getloadavg()[0]:.1f}: run again")
-                        bus.wait_for_nodes()
+                        settle(bus)
                     if r.status != "ok":
                         raise RuntimeError(f"theta {theta} seed {seed}: {r.status} {r.detail}")
                     out[theta].append(r)

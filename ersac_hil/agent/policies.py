@@ -7,7 +7,8 @@
 
 (equal ratios of stiffness per equal step of theta; the range is where the arms' stiffness
 shapes the catch: below ~15 N m/rad the arms collapse and the shell strikes the floor, above
-~130 the holding energy no longer falls and the elbow cables break for most impacts), with stiffness-proportional damping at the arm boards' own damping time::
+~110 the holding energy no longer falls and the elbow cables break for nearly every impact),
+with stiffness-proportional damping at the arm boards' own damping time::
 
     D(theta) = damping_time * K(theta)                   [N m s/rad], damping_time = 10 ms
 
