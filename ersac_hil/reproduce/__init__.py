@@ -9,5 +9,6 @@ episodes), so an interrupted run resumes where it stopped. Writes figures (PNG),
 ``results.json`` and ``results.md`` into ``DIR``. Modules: ``plan`` (sizes, episodes),
 ``runner`` (pairs, daemons, trials, progress), ``trials`` (independent episodes and their
 store), ``bracing`` / ``lifting`` / ``contexts`` (run + analyse), ``views`` (critic views of
-the stores), ``stats`` (tests), ``figures``, ``results``, ``cli``.
+the stores), ``stats`` (tests), ``figures``, ``results``, ``provenance`` (the code behind
+the episodes), ``cli``.
 """

@@ -24,14 +24,16 @@ EXPERIMENTS = ("bracing", "lifting", "contexts")
 
 
 def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # noqa: ANN001
-    """(total episodes, a function counting the episodes done so far) of ``experiments``."""
+    """(total episodes, a function counting the episodes done so far) of ``experiments``: the
+    learning episodes of their runs and their stored trials (those known so far: test trials
+    are known once the run they test is done), not whatever else the trial store holds."""
     from . import bracing, contexts, lifting, plan
     from .runner import stored_run
 
+    modules = {"bracing": bracing, "lifting": lifting, "contexts": contexts}
     runs, context_runs, trials = [], [], 0
     if "bracing" in experiments:
-        specs, _ = bracing.total(sizes)
-        trials += len({s.key for s in specs})
+        trials += len({s.key for s in bracing.known_trials(sizes, out)})
         runs += plan.bracing_runs(sizes)
     if "lifting" in experiments or "contexts" in experiments:
         runs += plan.lifting_runs(sizes) if "lifting" in experiments else plan.lifting_runs(sizes)[:1]
@@ -39,14 +41,15 @@ def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # n
         trials += 3 * sizes.test_trials * sizes.lifting_seeds
     if "contexts" in experiments:
         context_runs = [spec for _, spec in plan.context_runs(sizes)]
-        trials += len(context_runs) * sizes.test_trials * (2 if "lifting" in experiments else 3)
+        # per context: selected, after; the prior column is one (the lifting run's last stage)
+        trials += sizes.test_trials * (2 * len(context_runs) + (0 if "lifting" in experiments else 1))
     total = trials + sum(r.episodes for r in runs) + len(context_runs) * sizes.context_episodes
 
     def count() -> int:
         from .trials import TrialStore
-        done = 0
+        keys = {s.key for name in experiments for s in modules[name].known_trials(sizes, out)}
         with TrialStore(out / "trials.db") as store:
-            done += store.count()
+            done = store.count(keys)
         for r in runs:
             found = stored_run(r.db(out))
             done += found[1] if found else 0
@@ -58,13 +61,19 @@ def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # n
 
 
 def _check_plan(out: Path, meta: dict) -> str | None:
-    """An error if ``out`` was made with other sizes, else ``None`` (and ``plan.json`` written)."""
+    """An error if ``out`` was made with other sizes or its episodes by other simulator/agent
+    code (``provenance.fingerprint``), else ``None`` (and ``plan.json`` written)."""
+    from .provenance import mismatch
     path = out / "plan.json"
     if path.exists():
         old = json.loads(path.read_text())
         if old.get("sizes") != json.loads(json.dumps(meta["sizes"])):
             return (f"{out} holds a reproduce run with other sizes ({old.get('sizes')}); "
                     "use another --out, or the same --seeds/--quick to resume it")
+        changed = mismatch(old.get("model"), meta["model"])
+        if changed:
+            return (f"{out} holds episodes of other simulator/agent code (changed: {', '.join(changed)}); "
+                    "they must not be mixed with new ones: use another --out")
     path.write_text(json.dumps(meta, indent=1) + "\n")
     return None
 
@@ -76,6 +85,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     from ersac_hil.demo import ChildFailed, Stack
 
     from . import bracing, contexts, lifting, results
+    from .provenance import fingerprint
     from .runner import JobFailed, Pool, Progress
     from .trials import TrialStore
 
@@ -83,10 +93,10 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     experiments = EXPERIMENTS if experiment == "all" else (experiment,)
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"sizes": asdict(sizes), "quick": quick}
+    meta = {"sizes": asdict(sizes), "quick": quick, "model": fingerprint()}
     error = _check_plan(out, meta)
     if error:
-        say(f"ersac-hil reproduce: {error}")
+        print(f"ersac-hil reproduce: {error}", file=sys.stderr)
         return 2
     report = results.load(out)
     timing = report.get("meta", {}).get("timing", {})

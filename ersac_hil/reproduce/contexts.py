@@ -31,7 +31,7 @@ from .stats import describe, variance_drop, welch
 from .trials import TrialStore
 from .views import history
 
-__all__ = ["total", "execute", "analyse", "weights_of", "SIGNIFICANT"]
+__all__ = ["known_trials", "execute", "analyse", "weights_of", "SIGNIFICANT"]
 
 SIGNIFICANT = 0.01
 RISK_KAPPA = 2.0
@@ -40,10 +40,6 @@ RISK_KAPPA = 2.0
 def weights_of(context: str) -> dict[str, float]:
     """The complete lifting weights of ``context``."""
     return {**get_task("lifting").default_weights, **plan.CONTEXTS[context]}
-
-
-def total(sizes: Sizes) -> int:
-    return len(plan.CONTEXTS) * (sizes.context_episodes + 3 * sizes.test_trials)
 
 
 def _selected(db: Path) -> tuple[tuple[float, ...], int] | None:
@@ -101,17 +97,30 @@ def execute(pool: Pool, sizes: Sizes, out: Path) -> None:
                              "context test"))
 
 
-def _columns(sizes: Sizes, out: Path) -> dict[str, list[tuple[str, list]]]:
+def _columns(sizes: Sizes, out: Path, done_only: bool = False) -> dict[str, list[tuple[str, list]]]:
+    """Per context: (column label, test trial specs) of prior / selected / after the extra
+    episodes (the runs must be done; ``done_only``: only the columns whose policy is final)."""
     source = plan.lifting_runs(sizes)[0]
+    if done_only and not finished(source, out):
+        return {}
     prior = tuple(history(source.db(out)).policy_after(sizes.lifting_episodes))
+    more = ("--episodes", str(sizes.lifting_episodes + sizes.context_episodes))
     cols = {}
     for context, spec in plan.context_runs(sizes):
-        h = history(spec.db(out))
-        selected = _selected(spec.db(out))
-        thetas = [("prior", prior), ("selected", selected[0] if selected else prior),
-                  (f"after {sizes.context_episodes}", tuple(h.policy_after(h.n)))]
+        selected = _selected(spec.db(out)) if spec.db(out).exists() else None
+        thetas = [("prior", prior), ("selected", selected[0] if selected else prior)]
+        if not done_only or finished(spec, out, more):
+            h = history(spec.db(out))
+            thetas.append((f"after {sizes.context_episodes}", tuple(h.policy_after(h.n))))
+        elif selected is None:
+            thetas = thetas[:1]
         cols[context] = [(label, plan.test_trials(theta, source.seed, sizes)) for label, theta in thetas]
     return cols
+
+
+def known_trials(sizes: Sizes, out: Path) -> list:
+    """The test trials whose policies are known so far."""
+    return [s for cols in _columns(sizes, out, done_only=True).values() for _, ss in cols for s in ss]
 
 
 def analyse(sizes: Sizes, out: Path, trials: TrialStore, say=print) -> dict[str, Any]:  # noqa: ANN001

@@ -16,12 +16,12 @@ import numpy as np
 
 from . import figures, plan
 from .plan import Sizes
-from .runner import Pool
+from .runner import Pool, finished
 from .stats import describe, welch
 from .trials import Trial, TrialStore
 from .views import history
 
-__all__ = ["total", "execute_runs", "execute", "analyse", "stages", "success", "GOAL_HEIGHT_M",
+__all__ = ["known_trials", "execute_runs", "execute", "analyse", "stages", "success", "GOAL_HEIGHT_M",
            "GOAL_TOLERANCE_M"]
 
 GOAL_HEIGHT_M = 1.2
@@ -40,23 +40,26 @@ def success(trial: Trial) -> bool:
             and abs(h - GOAL_HEIGHT_M) <= GOAL_TOLERANCE_M)
 
 
-def total(sizes: Sizes) -> int:
-    """Episodes of the experiment (learning + test trials; upper bound, trials may coincide)."""
-    return sum(r.episodes for r in plan.lifting_runs(sizes)) + 3 * sizes.test_trials * sizes.lifting_seeds
-
-
 def execute_runs(pool: Pool, sizes: Sizes, out: Path, runs=None) -> None:  # noqa: ANN001
     pool.run(pool.learning_jobs(runs or plan.lifting_runs(sizes), out))
 
 
-def test_specs(sizes: Sizes, out: Path) -> dict[int, list[tuple[str, list]]]:
-    """Per run seed: (stage label, test trial specs) of each stage (the runs must be done)."""
+def test_specs(sizes: Sizes, out: Path, done_only: bool = False) -> dict[int, list[tuple[str, list]]]:
+    """Per run seed: (stage label, test trial specs) of each stage (the runs must be done;
+    ``done_only``: of the runs that are done, skipping the others)."""
     specs = {}
     for run in plan.lifting_runs(sizes):
+        if done_only and not finished(run, out):
+            continue
         h = history(run.db(out))
         specs[run.seed] = [(label, plan.test_trials(tuple(h.policy_after(n)), run.seed, sizes))
                            for label, n in stages(sizes)]
     return specs
+
+
+def known_trials(sizes: Sizes, out: Path) -> list:
+    """The test trials of the runs done so far."""
+    return [s for per_seed in test_specs(sizes, out, done_only=True).values() for _, ss in per_seed for s in ss]
 
 
 def execute(pool: Pool, sizes: Sizes, out: Path) -> None:
