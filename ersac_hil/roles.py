@@ -10,16 +10,18 @@ role       may
 =========  ===================================================================================
 router     listen (its certificate is the TLS server's); no rules of its own
 daemon     query ``episode/run``; see the agent's liveliness tokens; serve ``learner/state``,
-           ``learner/critic``, ``learner/select``; receive ``learner/kappa`` and
-           ``learner/weights`` puts; publish ``learner/episodes`` and ``learner/error``
+           ``learner/critic``, ``learner/select``, ``learner/episodes`` (history); receive
+           ``learner/kappa`` and ``learner/weights`` puts; publish ``learner/episodes`` and
+           ``learner/error``
 agent      serve ``episode/run`` (declare the queryable, reply); declare ``agent/alive`` and
            ``agent/session/<zid>``;
            publish ``episode/done``; receive ``agent/go``
 operator   put ``learner/kappa``, ``learner/weights``, ``agent/go``; query ``learner/state``,
-           ``learner/critic``, ``learner/select`` (also with ``adopt=true``); read
+           ``learner/critic``, ``learner/select`` (also with ``adopt=true``),
+           ``learner/episodes``; read
            ``learner/episodes``, ``learner/error``, ``episode/done``, ``agent/alive``
-observer   query ``learner/state`` and ``learner/critic``; read ``learner/episodes``,
-           ``learner/error``, ``episode/done``, ``agent/alive``; nothing else
+observer   query ``learner/state``, ``learner/critic`` and ``learner/episodes``; read
+           ``learner/episodes``, ``learner/error``, ``episode/done``, ``agent/alive``; nothing else
 simulator  the CAN bus only: send and receive frames on ``can/**`` (the CAN-over-Zenoh
            channels, ``ersac_hil.canbus.zenoh_bus``), like the agent; nothing else
 =========  ===================================================================================
@@ -61,14 +63,14 @@ PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]]
         "ingress": [
             (("query",), (_RUN,)),
             (_LIVELINESS_READ, (_ALIVE, _SESSION)),
-            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT)),
+            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT, _EPISODES)),
             (("declare_subscriber",), (_KAPPA, _WEIGHTS)),
             (("put",), (_EPISODES, _ERROR)),
         ],
         "egress": [
             (("declare_queryable", "reply"), (_RUN,)),
             (("liveliness_token", "reply"), (_ALIVE, _SESSION)),
-            (("query",), (_STATE, _CRITIC, _SELECT)),
+            (("query",), (_STATE, _CRITIC, _SELECT, _EPISODES)),
             (("put",), (_KAPPA, _WEIGHTS)),
             (("declare_subscriber",), (_EPISODES, _ERROR)),
         ],
@@ -89,12 +91,12 @@ PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]]
     "operator": {
         "ingress": [
             (("put",), (_KAPPA, _WEIGHTS, _GO)),
-            (("query",), (_STATE, _CRITIC, _SELECT)),
+            (("query",), (_STATE, _CRITIC, _SELECT, _EPISODES)),
             (("declare_subscriber",), _READ),
             (_LIVELINESS_READ, (_ALIVE,)),
         ],
         "egress": [
-            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT)),
+            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT, _EPISODES)),
             (("declare_subscriber",), (_KAPPA, _WEIGHTS, _GO)),
             (("put",), _READ),
             (("liveliness_token", "reply"), (_ALIVE,)),
@@ -102,12 +104,12 @@ PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]]
     },
     "observer": {
         "ingress": [
-            (("query",), (_STATE, _CRITIC)),
+            (("query",), (_STATE, _CRITIC, _EPISODES)),
             (("declare_subscriber",), _READ),
             (_LIVELINESS_READ, (_ALIVE,)),
         ],
         "egress": [
-            (("declare_queryable", "reply"), (_STATE, _CRITIC)),
+            (("declare_queryable", "reply"), (_STATE, _CRITIC, _EPISODES)),
             (("put",), _READ),
             (("liveliness_token", "reply"), (_ALIVE,)),
         ],

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import queue
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import TypeVar
 
 import zenoh
@@ -22,6 +22,7 @@ from protocol.zenoh import (
     ErrorReply,
     KappaCommand,
     KeySpace,
+    LearnerEpisode,
     LearnerState,
     Message,
     PayloadError,
@@ -80,18 +81,23 @@ class LearnerClient:
         self.close()
 
     # ------------------------------------------------------------------ queries
-    def _get(self, key: str, parameters: str, cls: type[_M], timeout_s: float | None = None) -> _M:
-        timeout = self.timeout_s if timeout_s is None else timeout_s
+    def _replies(self, key: str, parameters: str, cls: type[_M], timeout: float,
+                 consolidation: zenoh.ConsolidationMode | None = None) -> Iterator[_M]:
         selector = KeySpace.selector(key, parameters or None)
-        for reply in self._session.get(selector, timeout=timeout):
+        for reply in self._session.get(selector, timeout=timeout, consolidation=consolidation):
             try:
-                return decode_reply(reply, cls)
+                yield decode_reply(reply, cls)
             except ReplyRefused as exc:
                 raise RequestRefused(exc.error) from None
             except ReplyTimeout:
                 raise NoAnswer(f"no answer on {key} within {timeout:g} s") from None
             except MalformedReply as exc:
                 raise ClientError(f"bad reply from {key}: {exc}") from None
+
+    def _get(self, key: str, parameters: str, cls: type[_M], timeout_s: float | None = None) -> _M:
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        for message in self._replies(key, parameters, cls, timeout):
+            return message
         raise NoAnswer(f"no learner answered on {key} within {timeout:g} s "
                        "(is the daemon running for this robot and endpoint?)")
 
@@ -103,6 +109,13 @@ class LearnerClient:
 
     def select(self, query: SelectQuery) -> SelectReply:
         return self._get(self.keys.learner_select, query.to_parameters(), SelectReply)
+
+    def episodes(self) -> list[LearnerEpisode]:
+        """The run's history: every episode the learner recorded so far, in recording order
+        (``[]`` also when no learner answers: ask :meth:`state` to tell the two apart)."""
+        # every reply has the same key: Zenoh's default consolidation would keep the last only
+        return list(self._replies(self.keys.learner_episodes, "", LearnerEpisode, self.timeout_s,
+                                  zenoh.ConsolidationMode.NONE))
 
     # ------------------------------------------------------------------ puts
     def put_raw(self, kind: str, payload: bytes) -> None:

@@ -9,6 +9,8 @@ key                kind        semantics
 ``kappa``          subscriber  ``KappaCommand``: used from the next update on; recorded
 ``weights``        subscriber  ``WeightsCommand`` (partial): every stored episode re-costed; recorded
 ``episodes``       publisher   ``LearnerEpisode`` for every attempt the agent answered
+``episodes``       queryable   -> one ``LearnerEpisode`` reply per attempt of the run recorded so
+                               far, in recording order: the history a late subscriber missed
 ``error``          publisher   ``ErrorReply`` for every refused put (reason starts with the key)
 =================  ==========  ================================================================
 
@@ -25,6 +27,7 @@ import logging
 import queue
 import threading
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 import zenoh
@@ -67,6 +70,7 @@ class LearnerHandlers(Protocol):
     def select(self, query: SelectQuery) -> SelectReply: ...
     def set_kappa(self, command: KappaCommand) -> None: ...
     def set_weights(self, command: WeightsCommand) -> None: ...
+    def episodes(self) -> Sequence[LearnerEpisode]: ...
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,7 @@ class ControlPlane:
         handlers: the daemon side (see :class:`LearnerHandlers`).
     """
 
-    _QUERIES = ("state", "critic", "select")
+    _QUERIES = ("state", "critic", "select", "episodes")
     _PUTS = ("kappa", "weights")
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, handlers: LearnerHandlers) -> None:
@@ -96,7 +100,7 @@ class ControlPlane:
         self._error_pub = session.declare_publisher(keys.learner_error)
         self._entities += [self._episodes_pub, self._error_pub]
         query_keys = {"state": keys.learner_state, "critic": keys.learner_critic,
-                      "select": keys.learner_select}
+                      "select": keys.learner_select, "episodes": keys.learner_episodes}
         for kind, key in query_keys.items():
             self._entities.append(session.declare_queryable(key, self._on_query(kind)))
         for kind, key in {"kappa": keys.learner_kappa, "weights": keys.learner_weights}.items():
@@ -145,7 +149,7 @@ class ControlPlane:
     def _serve_query(self, kind: str, query: zenoh.Query) -> None:
         with query:
             try:
-                reply = self._answer(kind, query)
+                replies = self._answer(kind, query)
             except PayloadError as exc:
                 error = ErrorReply.from_exception(exc, "invalid_request")
             except ControlError as exc:
@@ -154,21 +158,23 @@ class ControlPlane:
                 log.exception("learner/%s query failed", kind)
                 error = ErrorReply("internal", f"{type(exc).__name__}: {exc}"[:4096])
             else:
-                query.reply(query.key_expr, reply.to_json(), encoding="application/json")
+                for reply in replies:
+                    query.reply(query.key_expr, reply.to_json(), encoding="application/json")
                 return
             log.info("refused learner/%s?%s: %s", kind, str(query.parameters)[:200], error.reason)
             query.reply_err(error.to_json(), encoding="application/json")
 
-    def _answer(self, kind: str, query: zenoh.Query):
+    def _answer(self, kind: str, query: zenoh.Query) -> Sequence[Any]:
+        """The replies to one query (one message, or one per episode of the history)."""
         payload = query.payload
         if payload is not None and len(payload.to_bytes()) > 0:
             raise ControlError("invalid_request", f"learner/{kind} takes no payload; use selector parameters")
-        if kind == "state":
+        if kind in ("state", "episodes"):
             parse_parameters(query.parameters, ())  # none accepted: unknown ones are refused
-            return self._handlers.state()
+            return [self._handlers.state()] if kind == "state" else self._handlers.episodes()
         if kind == "critic":
-            return self._handlers.critic(CriticQuery.from_parameters(query.parameters))
-        return self._handlers.select(SelectQuery.from_parameters(query.parameters))
+            return [self._handlers.critic(CriticQuery.from_parameters(query.parameters))]
+        return [self._handlers.select(SelectQuery.from_parameters(query.parameters))]
 
     def _serve_put(self, kind: str, payload: bytes) -> None:
         try:

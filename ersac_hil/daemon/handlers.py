@@ -9,11 +9,15 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from protocol.zenoh import (
+    STATUSES,
     CriticPoint,
     CriticQuery,
     CriticReply,
+    EpisodeRequest,
+    EpisodeResult,
     InvalidField,
     KappaCommand,
+    LearnerEpisode,
     LearnerState,
     SelectQuery,
     SelectReply,
@@ -24,12 +28,14 @@ from protocol.zenoh import (
 from .control import ControlError
 from .engine import NotEnoughData
 from .learning import LearningRun
+from .store import EpisodeRecord
 
 __all__ = ["ControlHandlers"]
 
 
 class ControlHandlers:
-    """``state``, ``critic``, ``select`` (optionally adopting), ``set_kappa``, ``set_weights``.
+    """``state``, ``critic``, ``select`` (optionally adopting), ``set_kappa``, ``set_weights``,
+    ``episodes`` (the run's history).
 
     Args:
         learning: the open run.
@@ -110,3 +116,23 @@ class ControlHandlers:
                 engine.set_weights(current)
                 raise
         self._say(f"weights -> {weights} ({run.n_updates} stored episodes re-costed)")
+
+    def episodes(self) -> list[LearnerEpisode]:
+        """Every attempt of the run the agent answered, in recording order, as it was published
+        on ``learner/episodes`` (the cost under the current weights, stamped when recorded)."""
+        with self._run.lock:
+            records = self._run.store.attempts(self._run.run_id)
+        return [_published(record, self._task) for record in records
+                if record.status in STATUSES and record.cost_terms is not None]
+
+
+def _published(record: EpisodeRecord, task: str) -> LearnerEpisode:
+    """The ``LearnerEpisode`` of a stored attempt that has the agent's result."""
+    request = EpisodeRequest(record.episode_id, task, record.theta, record.seed)
+    result = EpisodeResult(record.episode_id, task, record.status, dict(record.cost_terms or {}),
+                           record.agent_cost, dict(record.failures or {}), record.duration_s or 0.0,
+                           record.wall_s or 0.0, dict(record.telemetry or {}),
+                           dict(record.fault_counts or {}), record.detail, record.trace)
+    return LearnerEpisode(record.run_id, record.idx, record.base_theta, record.z, request, result,
+                          record.cost if record.status == "ok" else None,
+                          record.finished_s or record.requested_s)

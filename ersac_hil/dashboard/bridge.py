@@ -6,6 +6,10 @@
 * ``agent/alive`` liveliness subscriber (with history): agent alive or not;
 * ``learner/kappa`` and ``learner/weights`` subscribers: a change by anyone (CLI, another
   dashboard) triggers a state refresh;
+* the run's history (a ``learner/episodes`` query) once the learner answers a state query:
+  when the dashboard starts, after the learner was unreachable, and when a new run starts;
+  the episodes subscriber is declared first, so every episode is in the history, live, or
+  both (the model draws it once);
 * a refresher thread queries ``learner/state`` when woken (after every episode, refusal,
   put or control) and every ``state_period_s`` (an adopt by another client has no
   publication), then the critic (:func:`~ersac_hil.dashboard.model.critic_query`) whenever
@@ -74,6 +78,7 @@ class Bridge:
         self._entities: list = []
         self._thread: threading.Thread | None = None
         self._critic_key: object = None
+        self._history_run: str | None = None  # the run whose history the model holds
         try:
             self._session = open_session(resolve_config(zenoh_options), insecure=zenoh_options.insecure)
             s = self._session
@@ -163,9 +168,18 @@ class Bridge:
         try:
             state = self._client.state()
         except ClientError as exc:
+            self._history_run = None  # what was published meanwhile may never have reached us
             self._apply(lambda: self.model.learner_unreachable(str(exc)))
             return
         self._apply(lambda: self.model.set_state(state))
+        if state.run_id != self._history_run:
+            try:
+                history = self._client.episodes()
+            except ClientError as exc:
+                self._apply(lambda: self.model.notice("error", f"no history of run {state.run_id}: {exc}"))
+            else:
+                self._history_run = state.run_id
+                self._apply(lambda: self.model.load_history(state.run_id, history))
         with self.lock:
             key = self.model.critic_key()
         if key == self._critic_key or self._stop.is_set():

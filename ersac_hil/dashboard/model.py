@@ -42,7 +42,8 @@ class CurvePoint:
     """One attempt the learner recorded, as the learning curve plots it.
 
     Attributes:
-        seq: arrival order at the dashboard (0-based).
+        seq: position on the curve (0-based): recording order (the history, then what arrived
+            live after it).
         index: the learner's 0-based episode index (failed attempts share the index they retry).
         episode_id, status: from the agent's result.
         cost: cost under the learner's *current* weights, ``None`` unless ``status == "ok"``.
@@ -137,6 +138,11 @@ def critic_view(spec: TaskSpec, theta: Sequence[float], episode_count: int, repl
     return CriticView(reply.kappa, episode_count, tuple(float(t) for t in theta), tuple(slices))
 
 
+def _fault_text(point: CurvePoint) -> str:
+    return (f"episode {point.index + 1} ({point.episode_id}): {point.status}"
+            + (f": {point.detail}" if point.detail else ""))
+
+
 def _state_obj(state: LearnerState) -> dict[str, Any]:
     obj = state.to_obj()
     obj["weights"] = dict(state.weights)
@@ -157,6 +163,7 @@ class DashboardModel:
         self.seq = 0
         self.points: list[CurvePoint] = []
         self._results: list[Mapping[str, float]] = []  # cost terms per point, to re-cost
+        self._seen: set[str] = set()  # episode ids of the points: history and live overlap
         self.state: LearnerState | None = None
         self.means: dict[int, tuple[float, ...]] = {}  # episode index -> policy mean before it
         self.kappa_marks: list[tuple[int, float]] = []  # (update index it applies from, kappa)
@@ -192,17 +199,58 @@ class DashboardModel:
         self.run_id = run_id
         self.points.clear()
         self._results.clear()
+        self._seen.clear()
         self.means.clear()
         self.kappa_marks.clear()
         self.critic = None
 
     # ------------------------------------------------------------------ inputs
     def add_episode(self, episode: LearnerEpisode) -> list[Event]:
-        """A ``learner/episodes`` publication."""
+        """A ``learner/episodes`` publication (none if the history brought it already)."""
         events: list[Event] = []
         if episode.run_id != self.run_id:
             self._reset_run(episode.run_id)
             events.append(self._event("curve", **self.curve()))
+        if episode.result.episode_id in self._seen:
+            return events
+        point = self._append(episode)
+        events.append(self._event("episode", point=asdict(point)))
+        if not episode.result.ok:
+            events.append(self._event("fault", last_fault=self.last_fault))
+        return events
+
+    def load_history(self, run_id: str, history: Sequence[LearnerEpisode]) -> list[Event]:
+        """The run's episodes recorded before this dashboard listened (a ``learner/episodes``
+        query, in recording order). Episodes seen live already are not drawn twice; those seen
+        live but not in the history are newer (the learner publishes after recording) and
+        follow it."""
+        events: list[Event] = []
+        if run_id != self.run_id:
+            self._reset_run(run_id)
+            events.append(self._event("curve", **self.curve()))
+        history = [e for e in history if e.run_id == run_id]
+        known = {e.result.episode_id for e in history}
+        if known <= self._seen:
+            return events
+        fault = self.last_fault
+        live = [(p, terms) for p, terms in zip(self.points, self._results) if p.episode_id not in known]
+        self.points, self._results, self._seen = [], [], set()
+        for episode in history:
+            self._append(episode)
+        for p, terms in live:
+            self.points.append(replace(p, seq=len(self.points)))
+            self._results.append(terms)
+            self._seen.add(p.episode_id)
+        failed = [p for p in self.points if p.status != "ok"]
+        self.last_fault = _fault_text(failed[-1]) if failed else fault
+        events.append(self._event("curve", **self.curve()))
+        events.append(self._event("state", **self._state_data()))
+        if self.last_fault != fault:
+            events.append(self._event("fault", last_fault=self.last_fault))
+        return events
+
+    def _append(self, episode: LearnerEpisode) -> CurvePoint:
+        """One new point of the current run (``last_fault`` set if the attempt failed)."""
         result = episode.result
         spec = get_task(episode.request.task)
         point = CurvePoint(
@@ -212,13 +260,11 @@ class DashboardModel:
             episode.base_theta, episode.stamp_s, result.detail)
         self.points.append(point)
         self._results.append(result.cost_terms)
+        self._seen.add(result.episode_id)
         self.means[episode.index] = episode.base_theta
-        events.append(self._event("episode", point=asdict(point)))
         if not result.ok:
-            self.last_fault = (f"episode {episode.index + 1} ({result.episode_id}): {result.status}"
-                               + (f": {result.detail}" if result.detail else ""))
-            events.append(self._event("fault", last_fault=self.last_fault))
-        return events
+            self.last_fault = _fault_text(point)
+        return point
 
     def set_state(self, state: LearnerState) -> list[Event]:
         """A ``learner/state`` reply; returns no event when nothing shown changed."""

@@ -12,7 +12,7 @@ All keys live under ``<prefix>/<robot>`` (default prefix ``ersac``)::
     ersac/<robot>/learner/kappa      subscription (learner): KappaCommand
     ersac/<robot>/learner/weights    subscription (learner): WeightsCommand
     ersac/<robot>/learner/select     queryable (learner): ?kappa=...;weights=...;adopt=... -> SelectReply
-    ersac/<robot>/learner/episodes   publication (learner): LearnerEpisode
+    ersac/<robot>/learner/episodes   publication (learner): LearnerEpisode; queryable: the run so far
     ersac/<robot>/learner/error      publication (learner): ErrorReply for every refused put
 
 Zenoh key rules enforced here: chunks are non-empty (no leading, trailing or doubled ``/``),
@@ -162,7 +162,7 @@ class KeySpace:
 
     @property
     def learner_episodes(self) -> str:
-        """Publication of every episode the learner recorded."""
+        """Publication of every episode the learner recorded; a query gets the run's history."""
         return self._key("learner_episodes")
 
     @property

@@ -127,6 +127,21 @@ def test_state_and_published_episodes(learned, client):
         assert p.request.theta == a.theta and p.request.seed == a.seed
 
 
+def test_history_is_what_was_published(learned, client):
+    """A late client asks ``learner/episodes`` for the run so far: every attempt the agent
+    answered, in recording order, as published (the cost under the learner's current weights)."""
+    with Store(learned["db"], readonly=True) as store:
+        attempts = len(store.attempts(client.state().run_id))
+    published = wait_until(lambda: len(learned["episodes"]) >= attempts and learned["episodes"])
+    history = client.episodes()
+    assert [h.result.episode_id for h in history] == [p.result.episode_id for p in published]
+    engine = learned["daemon"].learning.engine
+    for h, p in zip(history, published):
+        assert (h.run_id, h.index, h.base_theta, h.z, h.request) == (p.run_id, p.index, p.base_theta, p.z, p.request)
+        assert h.result == p.result
+        assert h.cost == (engine.cost(h.result.cost_terms) if h.result.ok else None)
+
+
 def test_critic_points_and_grid(learned, client):
     theta = learned["daemon"].handlers.state().theta
     reply = client.critic(CriticQuery((theta, (0.25,)), kappa=2.0))
@@ -213,6 +228,7 @@ BAD_QUERIES = [
     ("select", "kappa=1;weights=body_acc_sq:1e308", "within [0, 1e+06]"),
     ("select", "kappa=1;weights=body_acc_sq:1e300", "within [0, 1e+06]"),
     ("state", "verbose=1", "verbose"),
+    ("episodes", "since=3", "since"),
 ]
 
 
@@ -220,7 +236,8 @@ BAD_QUERIES = [
 def test_invalid_queries_are_refused_and_change_nothing(learned, kind, params, mentions):
     session = learned["monitor"]
     before = _snapshot(learned)
-    key = {"critic": KS.learner_critic, "select": KS.learner_select, "state": KS.learner_state}[kind]
+    key = {"critic": KS.learner_critic, "select": KS.learner_select, "state": KS.learner_state,
+           "episodes": KS.learner_episodes}[kind]
     error = _refused(session, KS.selector(key, params or None))
     assert error.code == "invalid_request" and mentions in error.reason
     assert _snapshot(learned) == before

@@ -99,6 +99,42 @@ def test_a_new_run_starts_a_new_curve():
     assert [p.episode_id for p in model.points] == ["run-2.00000.0"]
 
 
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.sampled_from(["ok", "fault_heartbeat"]), min_size=1, max_size=10), st.data())
+def test_history_and_live_episodes_make_one_curve_in_recording_order(statuses, data):
+    """The dashboard subscribes when ``subscribed`` episodes are recorded, the learner reads the
+    history when ``recorded`` are, and ``arrived`` live ones reached the dashboard before the
+    history did: every episode is drawn once, in recording order, whatever the interleaving."""
+    recorded_order = [episode(i, 0.1 * (i % 10), status) for i, status in enumerate(statuses)]
+    n = len(recorded_order)
+    subscribed = data.draw(st.integers(0, n), label="subscribed")
+    recorded = data.draw(st.integers(subscribed, n), label="recorded")
+    arrived = data.draw(st.integers(subscribed, n), label="arrived")
+    model = DashboardModel("ubot1")
+    model.set_state(state())
+    for e in recorded_order[subscribed:arrived]:
+        model.add_episode(e)
+    events = model.load_history(RUN, recorded_order[:recorded])
+    for e in recorded_order[arrived:]:
+        events += model.add_episode(e)
+    ids = [e.result.episode_id for e in recorded_order]
+    assert [p.episode_id for p in model.points] == ids
+    assert [p.seq for p in model.points] == list(range(n))
+    assert sorted(model.means) == sorted({e.index for e in recorded_order})
+    assert not [d for k, d in events if k == "episode" and d["point"]["episode_id"] in ids[:max(recorded, arrived)]]
+    failed = [e for e in recorded_order if not e.result.ok]
+    assert (failed[-1].result.episode_id in model.last_fault) if failed else model.last_fault == ""
+
+
+def test_history_of_another_run_starts_a_new_curve():
+    model = DashboardModel("ubot1")
+    model.add_episode(episode(0))
+    events = model.load_history("run-2", [episode(0, run_id="run-2"), episode(1, run_id="run-2")])
+    assert [k for k, _ in events][:2] == ["curve", "curve"]
+    assert [p.episode_id for p in model.points] == ["run-2.00000.0", "run-2.00001.0"]
+    assert model.load_history("run-2", [episode(0, run_id="run-2")]) == []  # nothing new
+
+
 def test_learner_unreachable_is_shown_once_and_cleared_by_a_state():
     model = DashboardModel("ubot1")
     model.set_state(state())

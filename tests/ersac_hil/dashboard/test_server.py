@@ -33,7 +33,8 @@ EPISODES = 10
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     """Router, dashboard (with an event stream open from the start), synthetic agent, a monitor
-    of learner/episodes, and a daemon that learns EPISODES episodes and lingers."""
+    of learner/episodes, a daemon that learns EPISODES episodes and lingers, and a second
+    dashboard started once three episodes were published."""
     db = tmp_path_factory.mktemp("dash") / "dash.db"
     with EmbeddedRouter() as router:
         dashboard = DashboardService(ROBOT, "ersac", ZenohOptions((router.endpoint,)), "127.0.0.1", 0,
@@ -50,11 +51,16 @@ def stack(tmp_path_factory):
                                      kappa=1.0, resume="new", linger=True, backoff_s=(0.05, 0.1)))
         daemon.start()
         learner = LearnerClient(KS, [router.endpoint], timeout_s=20.0)
+        late = DashboardService(ROBOT, "ersac", ZenohOptions((router.endpoint,)), "127.0.0.1", 0,
+                                critic_points=11)
         try:
+            wait_until(lambda: len(published) >= 3, what="three episodes")
+            late.start()
             wait_until(lambda: learner.state().status == "idle", what="the run")
             yield {"url": url, "stream": stream, "learner": learner, "published": published, "db": db,
-                   "endpoint": router.endpoint, "dashboard": dashboard}
+                   "endpoint": router.endpoint, "dashboard": dashboard, "late": late}
         finally:
+            late.stop()
             learner.close()
             daemon.stop()
             sub.undeclare()
@@ -88,6 +94,17 @@ def test_every_published_episode_reaches_the_page_in_order(stack):
     assert "fault_pdo_timeout" in fault[-1]["last_fault"]
     snapshot = http(stack["url"] + "api/snapshot")[1]
     assert [p["episode_id"] for p in snapshot["points"]] == ids() and snapshot["agent_alive"] is True
+
+
+def test_a_dashboard_started_late_shows_the_whole_run_once(stack):
+    published, late = stack["published"], stack["late"].server.url
+    ids = lambda: [e.result.episode_id for e in published]  # noqa: E731
+    wait_until(lambda: [p["episode_id"] for p in http(late + "api/snapshot")[1]["points"]] == ids(),
+               what="every episode on the late dashboard, once, in order")
+    points = http(late + "api/snapshot")[1]["points"]
+    assert [p["seq"] for p in points] == list(range(len(points)))
+    assert [(p["index"], p["status"], p["theta"]) for p in points] == \
+        [(e.index, e.result.status, list(e.request.theta)) for e in published]
 
 
 def test_api_state_is_what_the_cli_prints(stack):
