@@ -225,10 +225,12 @@ def role_of_config(path: str | Path) -> str | None:
     """
     import zenoh
 
+    from ersac_hil.zenoh_session import zenoh_reason
+
     try:
         config = zenoh.Config.from_file(str(path))
     except (zenoh.ZError, ValueError, OSError) as exc:
-        raise CertError(f"cannot read zenoh config {path}: {exc}") from None
+        raise CertError(f"cannot read zenoh config {path}: {zenoh_reason(exc)}") from None
     cert_path = None
     for key in ("transport/link/tls/connect_certificate", "transport/link/tls/listen_certificate"):
         cert_path = json.loads(config.get_json(key))

@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import tempfile
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from protocol.can.busconfig import BusConfig, BusConfigError, parse_bus_kwargs, probe_bus, resolve_bus_config
@@ -89,6 +91,32 @@ def tcp_port(text: str) -> int:
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0..65535)")
     return value
+
+
+def output_dir(text: str) -> str:
+    """A directory the command may create or write into: an existing directory, or a path
+    whose nearest existing ancestor is a directory a file can be created in (tried with a
+    temporary directory, removed at once: nothing is left behind). Returns ``text``."""
+    path = Path(text).expanduser().absolute()
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a directory")
+    ancestor = next(p for p in (path, *path.parents) if p.exists())
+    if not ancestor.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: {ancestor} is not a directory")
+    try:
+        tempfile.TemporaryDirectory(dir=ancestor).cleanup()
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: cannot write in {ancestor} ({exc.strerror or exc})") from None
+    return text
+
+
+def file_in_dir(text: str) -> str:
+    """A file path (existing or not) that is not a directory, in an ``output_dir``. Returns ``text``."""
+    path = Path(text).expanduser()
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory, not a file")
+    output_dir(str(path.parent))
+    return text
 
 
 def usable_bus(interface: str | None, channel: str | None, bitrate: int | None,

@@ -48,7 +48,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ersac_hil.cli_args import UsageError, finite_float, non_negative_int, positive_int
+from ersac_hil.cli_args import (UsageError, finite_float, non_negative_int, output_dir, positive_int,
+                                tcp_port)
 
 __all__ = ["register", "Child", "ChildFailed", "DemoConfig", "Pair", "Stack", "cli_argv", "run_demo"]
 
@@ -442,12 +443,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--kappa", type=finite_float, default=2.0, help="risk sensitivity (default 2)")
     p.add_argument("--episodes", type=positive_int, default=45, help="episodes to learn for (default 45)")
     p.add_argument("--seed", type=non_negative_int, default=1, help="run and simulator seed (default 1)")
-    p.add_argument("--out", default="demo-report", help="report directory (default ./demo-report)")
+    p.add_argument("--out", type=output_dir, default="demo-report",
+                   help="report directory (default ./demo-report)")
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
     p.add_argument("--secure", action="store_true",
                    help="TLS with client certificates and access control by role (certs in OUT/certs)")
     p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard; prints its URL")
-    p.add_argument("--dashboard-port", dest="dashboard_port", type=int, default=8050,
+    p.add_argument("--dashboard-port", dest="dashboard_port", type=tcp_port, default=8050,
                    help="dashboard port (default 8050; 0 = a free one)")
     p.add_argument("--can", choices=("zenoh", "hub"), default="zenoh",
                    help="CAN between simulator and agent: over Zenoh through the router (default; "

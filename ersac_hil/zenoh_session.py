@@ -207,7 +207,7 @@ def make_config(
         try:
             config.insert_json5(key, json.dumps(value))
         except zenoh.ZError as exc:
-            raise ZenohConfigError(f"invalid config value at {key!r}: {exc}") from exc
+            raise ZenohConfigError(f"invalid config value at {key!r}: {zenoh_reason(exc)}") from exc
     return config
 
 
@@ -263,7 +263,16 @@ def open_session(config: zenoh.Config, *, insecure: bool = False) -> zenoh.Sessi
         return zenoh.open(config)
     except zenoh.ZError as exc:
         endpoints = _json_at(config, "listen/endpoints") + _json_at(config, "connect/endpoints")
-        raise ZenohSessionError(f"cannot open a zenoh session on {endpoints}: {exc}") from exc
+        raise ZenohSessionError(f"cannot open a zenoh session on {endpoints}: {zenoh_reason(exc)}") from exc
+
+
+_RUST_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """Zenoh's error text without the Rust source locations it appends (`` at /.../x.rs:388.``):
+    the build machine's paths tell a user nothing."""
+    return _RUST_SOURCE.sub("", str(exc)).strip()
 
 
 # --------------------------------------------------------------------------- command lines
@@ -357,7 +366,7 @@ def resolve_config(
         try:
             config = zenoh.Config.from_file(path)
         except (zenoh.ZError, ValueError) as exc:
-            raise ZenohConfigError(f"zenoh config {path} is not a valid Zenoh json5 config: {exc}") from None
+            raise ZenohConfigError(f"zenoh config {path} is not a valid Zenoh json5 config: {zenoh_reason(exc)}") from None
     given = list(options.endpoints)
     file_listen = _file_endpoints(config, "listen", mode)
     file_connect = _file_endpoints(config, "connect", mode)
@@ -378,7 +387,7 @@ def resolve_config(
         if connect_timeout_s is not None:
             config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
     except zenoh.ZError as exc:
-        raise ZenohConfigError(f"invalid zenoh endpoints {listen_eps + connect_eps}: {exc}") from None
+        raise ZenohConfigError(f"invalid zenoh endpoints {listen_eps + connect_eps}: {zenoh_reason(exc)}") from None
     check_config(config, insecure=options.insecure)
     return config
 

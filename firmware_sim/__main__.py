@@ -83,6 +83,9 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
     if args.seed < 0:
         parser.error(f"--seed must not be negative, got {args.seed}")
     if args.snapshot:
+        from firmware_sim.scenarios import SCENARIOS
+        if args.scenario not in SCENARIOS:
+            parser.error(f"--scenario {args.scenario!r} is not one of {sorted(SCENARIOS)}")
         if not math.isfinite(args.at) or args.at < 0:
             parser.error(f"--at must not be negative, got {args.at}")
         if not Path(args.snapshot).resolve().parent.is_dir():

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ersac_hil.cli_args import UsageError, positive_float, tcp_port
+from ersac_hil.cli_args import UsageError, file_in_dir, output_dir, positive_float, tcp_port
 
 __all__ = ["register"]
 
@@ -49,7 +49,7 @@ def _fail(message: str, code: int = 2) -> int:
 def _daemon(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import serve
 
-    from .config import ConfigError, load_toml, merge
+    from .config import RESUME_LATEST, RESUME_NEW, ConfigError, load_toml, merge
     from .runs import RunFinished
     from .service import Daemon
     from .store import StoreError
@@ -70,6 +70,8 @@ def _daemon(args: argparse.Namespace) -> int:
     }
     try:
         config = merge(load_toml(args.config) if args.config else {}, flags)
+        if config.resume not in (RESUME_NEW, RESUME_LATEST) and not Path(config.db).exists():
+            return _fail(f"no run {config.resume!r}: no store at {config.db}")  # and none made
         daemon = Daemon(config)
         code = serve(daemon, until=daemon.finished)
     except RunFinished as exc:  # a supervisor's restart after the end: not an error
@@ -189,12 +191,16 @@ def _kappa(args: argparse.Namespace) -> int:
 
 
 def _check_weights(args: argparse.Namespace) -> None:
-    from protocol.zenoh import WeightsCommand
+    from protocol.zenoh import TASKS, WeightsCommand
     if args.action == "get" and args.weight:
         raise UsageError("weights get takes no values")
     if args.action == "set":
         if not args.weight:
             raise UsageError("weights set needs NAME=VALUE ...")
+        terms = sorted({t for spec in TASKS.values() for t in spec.term_names})
+        unknown = [name for name, _ in args.weight if name not in terms]
+        if unknown:  # which task's terms apply only the learner knows; these are no task's
+            raise UsageError(f"{', '.join(unknown)}: not a cost term of any task (known: {', '.join(terms)})")
         _payload(lambda: WeightsCommand(dict(args.weight)))
 
 
@@ -226,6 +232,11 @@ def _select(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- report
+def _check_report(args: argparse.Namespace) -> None:
+    if not Path(args.db).is_file():
+        raise UsageError(f"no store at {args.db}")
+
+
 def _report(args: argparse.Namespace) -> int:
     from .report import write_report
     from .store import Store, StoreError
@@ -281,7 +292,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--weight", action="append", type=_weight, metavar="NAME=VALUE",
                    help="cost-term weight (repeatable; default: the task's)")
     add_zenoh_arguments(p)
-    p.add_argument("--db", help="SQLite store (default ersac.db)")
+    p.add_argument("--db", type=file_in_dir, help="SQLite store (default ersac.db)")
     p.add_argument("--episode-timeout", dest="episode_timeout", type=float,
                    help="seconds one episode may take (default 60)")
     p.add_argument("--max-attempts", dest="max_attempts", type=int,
@@ -339,5 +350,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="plots and summary.json of a run")
     p.add_argument("run_id", help="run id, or 'latest'")
     p.add_argument("--db", default="ersac.db", help="SQLite store (default ersac.db)")
-    p.add_argument("--out", default="report", help="output directory (default ./report)")
-    p.set_defaults(func=_report)
+    p.add_argument("--out", type=output_dir, default="report", help="output directory (default ./report)")
+    p.set_defaults(func=_report, validate=_check_report)

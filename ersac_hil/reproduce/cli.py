@@ -18,6 +18,8 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
+from ersac_hil.cli_args import output_dir
+
 __all__ = ["register", "run_reproduce"]
 
 EXPERIMENTS = ("bracing", "lifting", "contexts")
@@ -174,7 +176,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, default=None,
                    help="run seeds of bracing and lifting (default: bracing 10, lifting 5)")
     p.add_argument("--quick", action="store_true", help="a tiny variant of every experiment (smoke test)")
-    p.add_argument("--out", default="reproduce-results", help="output directory (default ./reproduce-results)")
+    p.add_argument("--out", type=output_dir, default="reproduce-results",
+                   help="output directory (default ./reproduce-results)")
     p.add_argument("--pairs", type=int, default=1,
                    help="simulator/agent pairs run in parallel (default 1; one core each)")
     p.set_defaults(func=_main)

@@ -106,13 +106,14 @@ def resolve_bus_config(interface: str | None = None, channel: str | None = None,
     ``options`` (:func:`parse_bus_kwargs`) override the configured keyword arguments."""
     given = {k: v for k, v in (("interface", interface), ("channel", channel),
                                ("bitrate", bitrate)) if v is not None} | dict(options)
+    nothing = ("no CAN interface/channel given and none configured "
+               "(CAN_INTERFACE/CAN_CHANNEL or ~/.canrc)")
     try:
         resolved = can.util.load_config(config=given)
-    except can.CanInterfaceNotImplementedError as exc:
-        raise BusConfigError(str(exc)) from exc
+    except can.CanInterfaceNotImplementedError as exc:  # python-can: 'Unknown interface type "None"'
+        raise BusConfigError(str(exc) if interface is not None else nothing) from exc
     if not resolved.get("interface") or resolved.get("channel") in (None, ""):
-        raise BusConfigError("no CAN interface/channel given and none configured "
-                             "(CAN_INTERFACE/CAN_CHANNEL or ~/.canrc)")
+        raise BusConfigError(nothing)
     extra = tuple((k, str(v)) for k, v in resolved.items() if k not in _OWN_KEYS)
     return BusConfig(str(resolved["interface"]), str(resolved["channel"]),
                      int(resolved.get("bitrate") or DEFAULT_BITRATE), extra)

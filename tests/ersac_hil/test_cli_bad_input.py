@@ -1,11 +1,14 @@
 """Every subcommand answers bad input with one clear line on stderr and exit status 2, before it
 starts anything: no traceback, no child process, no file written.
 
-``BAD_INPUT`` holds at least one case per subcommand; a subcommand without one fails
-``test_every_subcommand_has_a_bad_input_case`` (add its cases when you add the command).
+The test is parametrised over the subcommands the parser has (found by walking it, so a new
+subcommand is a new test case), and runs every case of ``BAD_INPUT`` for it plus an unknown
+option; a subcommand without a case of its own in ``BAD_INPUT`` fails (add its cases when you
+add the command). ``sim`` execs ``python -m firmware_sim``: its cases run as processes.
 """
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
@@ -16,98 +19,133 @@ import ersac_hil
 from ersac_hil.canbus import vcan_status
 from ersac_hil.cli import build_parser, main
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = pytest.mark.timeout(180)
 NO_ROUTER = "tcp/127.0.0.1:9"  # nothing listens: a command that got this far would hang or fail late
-SOCKETCAN_MISSING = not vcan_status("vcan0").available
+Z = ("--zenoh", NO_ROUTER)
+SOCKETCAN = vcan_status("vcan0")
+UNKNOWN_OPTION = (("--no-such-option",), "error:")
+"""Every subcommand gets this case too."""
 
-# (argv, a phrase the one-line answer must contain)
-BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
-    (("bus-load", "--rate", "0"), "must be positive"),
-    (("bus-load", "--bitrate", "fast"), "not an integer"),
-    (("bus", "--port", "99999"), "not a TCP port"),
-    (("router", "--port", "-1"), "not a TCP port"),
-    (("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "virtual", "--bus-channel", "x",
-      "--period-ms", "0"), "must be positive"),
-    (("agent", "--robot", "a/b", "--zenoh", NO_ROUTER, "--bus-interface", "virtual", "--bus-channel", "x"),
-     "not a valid key chunk"),
-    (("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "remote",
-      "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers"),
-    (("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "zenoh", "--bus-channel", "c",
-      "--bus-kwargs", "zenoh_config={tmp}/none.json5"), "no such file"),
-    (("daemon", "--robot", "r", "--episodes", "0", "--zenoh", NO_ROUTER, "--db", "{tmp}/d.db"), "episodes"),
-    (("daemon", "--robot", "r", "--kappa", "nan", "--zenoh", NO_ROUTER, "--db", "{tmp}/d.db"), "finite"),
-    (("state", "--timeout", "0", "--zenoh", NO_ROUTER), "must be positive"),
-    (("kappa", "set", "nan", "--zenoh", NO_ROUTER), "finite"),
-    (("kappa", "set", "--zenoh", NO_ROUTER), "needs a VALUE"),
-    (("weights", "set", "damage=-1", "--zenoh", NO_ROUTER), "below the minimum"),
-    (("critic", "--grid", "0", "--zenoh", NO_ROUTER), "grid"),
-    (("critic", "--zenoh", NO_ROUTER), "--theta"),
-    (("select", "--kappa", "1e9", "--zenoh", NO_ROUTER), "above the maximum"),
-    (("report", "latest", "--db", "{tmp}/none.db", "--out", "{tmp}/report"), "no store"),
-    (("certs", "init", "{tmp}/certs", "--days", "0"), "days must be in"),
-    (("certs", "init", "{tmp}/certs", "--router", "nonsense"), "is not of the form"),
-    (("reproduce", "bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
-    (("reproduce", "juggling", "--out", "{tmp}/results"), "invalid choice"),
-    (("dashboard", "--port", "99999", "--zenoh", NO_ROUTER), "not in 0..65535"),
-    (("dashboard", "--robot", "a/b", "--zenoh", NO_ROUTER), "not a valid key chunk"),
-    (("demo", "--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
-    (("demo", "--kappa", "nan", "--out", "{tmp}/demo"), "not a finite number"),
-    (("demo", "--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
-]
-SIM_BAD_INPUT: list[tuple[tuple[str, ...], str]] = [
-    (("--bus-interface", "virtual", "--bus-channel", "x", "--control-period", "0"), "--control-period must be"),
-    (("--snapshot", "/nonexistent-dir/frame.png"), "no directory"),
-    (("--bus-interface", "virtual", "--bus-channel", "x", "--seed", "-1"), "must not be negative"),
-    (("--bus-interface", "remote", "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers"),
-    (("--bus-interface", "remote", "--bus-channel", "ws://10.0.0.1:9/"), "loopback"),
-    (("--bus-interface", "virtual", "--bus-channel", "x", "--bus-kwargs", "nonsense"), "is not KEY=VALUE"),
-    (("--bus-interface", "zenoh", "--bus-channel", "c@tcp/127.0.0.1:9", "--bus-kwargs", "insecure=maybe"),
-     "insecure must be true or false"),
-]
-if SOCKETCAN_MISSING:  # the kernel without SocketCAN: say so, the way vcan_status() does
-    reason = vcan_status("vcan0").reason
-    BAD_INPUT.append((("agent", "--robot", "r", "--zenoh", NO_ROUTER, "--bus-interface", "socketcan",
-                       "--bus-channel", "vcan0"), reason))
-    SIM_BAD_INPUT.append((("--bus-interface", "socketcan", "--bus-channel", "vcan0"), reason))
+# subcommand -> [(its arguments, a phrase the one-line answer must contain)]; {tmp}: an empty directory
+BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
+    "bus-load": [(("--rate", "0"), "must be positive"), (("--bitrate", "fast"), "not an integer")],
+    "bus": [(("--port", "99999"), "not a TCP port")],
+    "router": [(("--port", "-1"), "not a TCP port")],
+    "agent": [
+        (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--period-ms", "0"),
+         "must be positive"),
+        (("--robot", "a/b", *Z, "--bus-interface", "virtual", "--bus-channel", "x"), "not a valid key chunk"),
+        (("--robot", "r", *Z, "--bus-interface", "remote", "--bus-channel", "ws://127.0.0.1:9/"),
+         "no CAN hub answers"),
+        (("--robot", "r", *Z), "no CAN interface/channel given"),
+        (("--robot", "r", *Z, "--bus-interface", "zenoh", "--bus-channel", "c",
+          "--bus-kwargs", "zenoh_config={tmp}/none.json5"), "no such file"),
+    ],
+    "daemon": [
+        (("--robot", "r", "--episodes", "0", *Z, "--db", "{tmp}/d.db"), "episodes"),
+        (("--robot", "r", "--kappa", "nan", *Z, "--db", "{tmp}/d.db"), "finite"),
+        (("--robot", "r", "--resume", "20260101T000000-abcdef", *Z, "--db", "{tmp}/d.db"), "no store"),
+        (("--robot", "r", *Z, "--db", "{tmp}"), "is a directory"),
+        (("--robot", "r", "--zenoh", "nonsense", "--db", "{tmp}/d.db"), "invalid zenoh endpoints"),
+    ],
+    "state": [(("--timeout", "0", *Z), "must be positive")],
+    "kappa": [(("set", "nan", *Z), "finite"), (("set", *Z), "needs a VALUE")],
+    "weights": [(("set", "damage=-1", *Z), "below the minimum"), (("set", "colour=1", *Z), "not a cost term")],
+    "critic": [(("--grid", "0", *Z), "grid"), (Z, "--theta")],
+    "select": [(("--kappa", "1e9", *Z), "above the maximum")],
+    "report": [(("latest", "--db", "{tmp}/none.db", "--out", "{tmp}/report"), "no store"),
+               (("latest", "--out", "/proc/report"), "cannot write")],
+    "certs init": [(("{tmp}/certs", "--days", "0"), "days must be in"),
+                   (("{tmp}/certs", "--router", "nonsense"), "is not of the form")],
+    "reproduce": [(("bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
+                  (("juggling", "--out", "{tmp}/results"), "invalid choice"),
+                  (("bracing", "--out", "/proc/results"), "cannot write")],
+    "dashboard": [(("--port", "99999", *Z), "not in 0..65535"), (("--robot", "a/b", *Z), "not a valid key chunk")],
+    "demo": [
+        (("--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
+        (("--kappa", "nan", "--out", "{tmp}/demo"), "not a finite number"),
+        (("--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
+        (("--dashboard-port", "99999", "--out", "{tmp}/demo"), "not a TCP port"),
+        (("--out", "/proc/demo"), "cannot write"),
+    ],
+    "sim": [
+        (("--bus-interface", "virtual", "--bus-channel", "x", "--control-period", "0"), "--control-period must be"),
+        (("--snapshot", "/nonexistent-dir/frame.png"), "no directory"),
+        (("--snapshot", "{tmp}/frame.png", "--scenario", "juggling"), "--scenario 'juggling' is not one of"),
+        (("--bus-interface", "virtual", "--bus-channel", "x", "--seed", "-1"), "must not be negative"),
+        (("--bus-interface", "remote", "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers"),
+        (("--bus-interface", "remote", "--bus-channel", "ws://10.0.0.1:9/"), "loopback"),
+        ((), "no CAN interface/channel given"),
+        (("--bus-interface", "virtual", "--bus-channel", "x", "--bus-kwargs", "nonsense"), "is not KEY=VALUE"),
+        (("--bus-interface", "zenoh", "--bus-channel", "c@tcp/127.0.0.1:9", "--bus-kwargs", "insecure=maybe"),
+         "insecure must be true or false"),
+    ],
+}
+if not SOCKETCAN.available:  # the kernel without SocketCAN: say so, the way vcan_status() does
+    BAD_INPUT["agent"].append((("--robot", "r", *Z, "--bus-interface", "socketcan", "--bus-channel", "vcan0"),
+                               SOCKETCAN.reason))
+    BAD_INPUT["sim"].append((("--bus-interface", "socketcan", "--bus-channel", "vcan0"), SOCKETCAN.reason))
 
 
-def _subcommands() -> set[str]:
-    sub = next(a for a in build_parser()._actions if a.choices and isinstance(a.choices, dict))
-    return set(sub.choices)
+def _commands(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = ()) -> list[str]:
+    """Every runnable subcommand of ``parser`` ("certs init": a subcommand's subcommand)."""
+    found = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                nested = _commands(sub, (*prefix, name))
+                found += nested or [" ".join((*prefix, name))]
+    return found
 
 
-def test_every_subcommand_has_a_bad_input_case():
-    covered = {argv[0] for argv, _ in BAD_INPUT} | {"sim"}
-    assert _subcommands() <= covered, f"no bad-input case for {sorted(_subcommands() - covered)}"
+COMMANDS = _commands(build_parser())
 
 
-def _one_line(err: str, needle: str) -> None:
+def _children() -> set[int]:
+    return {int(pid) for task in Path("/proc/self/task").iterdir()
+            for pid in (task / "children").read_text().split()}
+
+
+def _check(code: int | None, err: str, needle: str) -> str | None:
+    """What is wrong with one answer (``None``: a usage error of one line naming ``needle``)."""
     lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and needle in lines[0], err
-    assert "Traceback" not in err
+    if code != 2 or len(lines) != 1 or "Traceback" in err or needle not in lines[0]:
+        return f"exit {code}, stderr {err!r} (wanted one line with {needle!r})"
+    return None
 
 
-@pytest.mark.parametrize("argv, needle", BAD_INPUT, ids=lambda v: " ".join(v) if isinstance(v, tuple) else "")
-def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):
-    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+def _run_in_process(argv: list[str], capsys) -> tuple[int | None, str]:  # noqa: ANN001
     try:
         code = main(argv)
     except SystemExit as exc:  # argparse's own refusals
         code = exc.code
-    out, err = capsys.readouterr()
-    assert code == 2, out + err
-    _one_line(err, needle)
-    assert list(tmp_path.iterdir()) == [], "bad input must change nothing"
+    return code, capsys.readouterr().err
 
 
-@pytest.mark.parametrize("argv, needle", SIM_BAD_INPUT, ids=lambda v: " ".join(v) if isinstance(v, tuple) else "")
-def test_sim_bad_input_is_one_line_and_exit_2(argv, needle):
-    """``ersac-hil sim`` runs the simulator's own entry point: a process of its own."""
-    proc = subprocess.run([sys.executable, "-m", "ersac_hil.cli", "sim", *argv], capture_output=True,
-                          text=True, timeout=60)
-    assert proc.returncode == 2, proc.stdout + proc.stderr
-    assert "simulator:" not in proc.stdout  # refused before a node came up
-    _one_line(proc.stderr, needle)
+def _run_sim(argv: list[str]) -> tuple[int | None, str]:
+    proc = subprocess.run([sys.executable, "-m", "ersac_hil.cli", *argv], capture_output=True, text=True,
+                          timeout=60)
+    if "simulator:" in proc.stdout:  # a node came up: too late for a usage error
+        return None, proc.stderr
+    return proc.returncode, proc.stderr
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_bad_input_is_one_line_and_exit_2(command, tmp_path, capsys):
+    cases = BAD_INPUT.get(command, [])
+    assert cases, f"no bad-input case for {command!r}: add its cases to BAD_INPUT"
+    children = _children()
+    wrong = []
+    for args, needle in [*cases, UNKNOWN_OPTION]:
+        argv = [*command.split(), *(a.replace("{tmp}", str(tmp_path)) for a in args)]
+        code, err = _run_sim(argv) if command == "sim" else _run_in_process(argv, capsys)
+        problem = _check(code, err, needle)
+        if problem:
+            wrong.append(f"ersac-hil {' '.join(argv)}: {problem}")
+        if list(tmp_path.iterdir()):
+            wrong.append(f"ersac-hil {' '.join(argv)} wrote {sorted(p.name for p in tmp_path.iterdir())}")
+        assert _children() <= children, f"ersac-hil {' '.join(argv)} left a child process"
+    assert not wrong, "\n".join(wrong)
 
 
 def test_version():
