@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 import pytest
@@ -27,3 +28,20 @@ def wait_until(predicate: Callable[[], T], timeout_s: float = DEFAULT_TIMEOUT_S,
         if time.monotonic() > deadline:
             pytest.fail(f"{what} not met within {timeout_s} s")
         time.sleep(poll_s)
+
+
+def wait_for_store(db: Path, predicate: Callable[..., object], timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+    """Wait until ``predicate(store, run_id)`` holds for the first run of the SQLite store at
+    ``db``, which another process is writing (it may not exist yet, or be half made)."""
+    from ersac_hil.daemon.store import Store
+
+    def reached() -> bool:
+        if not db.exists():
+            return False
+        try:
+            with Store(db, readonly=True) as store:
+                runs = store.runs()
+                return bool(runs and predicate(store, runs[0].run_id))
+        except Exception:  # noqa: BLE001 - the writer may still be creating the schema
+            return False
+    wait_until(reached, timeout_s, what="the daemon's store state")

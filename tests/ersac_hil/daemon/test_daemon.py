@@ -17,7 +17,7 @@ from ersac_hil.daemon.runs import open_run, rebuild_engine, scenario_seed
 from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS
 from ersac_hil.daemon.store import Store
 from helpers import synthetic_agent
-from helpers.waiting import wait_until
+from helpers.waiting import wait_for_store, wait_until
 from protocol.zenoh import KeySpace
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -224,7 +224,7 @@ def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path)
     proc = subprocess.Popen(_daemon_cmd(router, killed), env=env, cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
-        _wait_for_store(killed, lambda s, run: len(s.ok_episodes(run)) >= 7 and s.attempts(run, "pending"))
+        wait_for_store(killed, lambda s, run: len(s.ok_episodes(run)) >= 7 and s.attempts(run, "pending"))
         proc.send_signal(signal.SIGKILL)  # mid-episode: an attempt is pending
         proc.wait(10)
     finally:
@@ -258,20 +258,6 @@ def test_resume_after_sigkill_continues_exactly(router, agent_factory, tmp_path)
     assert _ok_history(killed)[1] == eps
 
 
-def _wait_for_store(db: Path, predicate) -> None:  # noqa: ANN001
-    """Wait until ``predicate(store, run_id)`` holds in a store another process is writing."""
-    def reached() -> bool:
-        if not db.exists():
-            return False
-        try:
-            with Store(db, readonly=True) as store:
-                runs = store.runs()
-                return bool(runs and predicate(store, runs[0].run_id))
-        except Exception:  # noqa: BLE001 - the writer may still be creating the schema
-            return False
-    wait_until(reached, what="the daemon's store state")
-
-
 def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp_path):
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
     agent_factory("res", delay_s=60.0)  # an episode that outlasts the test's deadline
@@ -279,7 +265,7 @@ def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp
     proc = subprocess.Popen(_daemon_cmd(router, db), env=env, cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
-        _wait_for_store(db, lambda s, run: s.attempts(run, "pending"))
+        wait_for_store(db, lambda s, run: s.attempts(run, "pending"))
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=30)  # exits while the episode runs: cancelled, not waited for
     finally:

@@ -18,7 +18,7 @@ from ersac_hil.daemon.engine import Engine
 from ersac_hil.daemon.report import write_report
 from ersac_hil.daemon.store import Store
 from helpers import synthetic_agent
-from helpers.waiting import wait_until
+from helpers.waiting import wait_for_store
 
 ROOT = Path(__file__).resolve().parents[3]
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -79,17 +79,6 @@ def _history(db: Path):
         return run, episodes, updates, store.attempts(run.run_id)
 
 
-def _wait_for_store(db: Path, predicate) -> None:  # noqa: ANN001
-    def reached() -> bool:
-        try:
-            with Store(db, readonly=True) as store:
-                runs = store.runs()
-                return bool(runs and predicate(store, runs[0].run_id))
-        except Exception:  # noqa: BLE001 - the writer may still be creating the schema
-            return False
-    wait_until(reached, what="the daemon's store state")
-
-
 def test_one_or_two_agents_give_bit_identical_runs_and_a_killed_agent_loses_nothing(router, agents, tmp_path):
     agents.start("fa")
     one = tmp_path / "one.db"
@@ -143,7 +132,7 @@ def test_a_daemon_killed_mid_batch_resumes_without_repeating_an_episode(router, 
     def mid_batch(store: Store, run_id: str) -> bool:  # an ok episode waits for its batch
         return any(e.update_idx is None for e in store.ok_episodes(run_id)) and store.update_count(run_id) >= 1
     try:
-        _wait_for_store(killed, mid_batch)
+        wait_for_store(killed, mid_batch)
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     finally:
