@@ -142,7 +142,8 @@ def test_filters_apply(can_router):
 
 
 def test_periodic_tasks_change_their_data(pair):
-    """python-can-remote 0.3 cannot (NOTES.md); heartbeats depend on it."""
+    """python-can-remote 0.3 cannot (its ``CyclicSendTask.modify_data`` raises TypeError, see
+    ersac_hil/canbus/heartbeat.py); heartbeats depend on it."""
     a, b = pair
     task = a.send_periodic(can.Message(arbitration_id=0x701, data=[0x7F]), period=0.01)
     try:
