@@ -366,7 +366,8 @@ def resolve_config(
         try:
             config = zenoh.Config.from_file(path)
         except (zenoh.ZError, ValueError) as exc:
-            raise ZenohConfigError(f"zenoh config {path} is not a valid Zenoh json5 config: {zenoh_reason(exc)}") from None
+            raise ZenohConfigError(f"zenoh config {path} is not a valid Zenoh json5 config: "
+                                   f"{zenoh_reason(exc)}") from None
     given = list(options.endpoints)
     file_listen = _file_endpoints(config, "listen", mode)
     file_connect = _file_endpoints(config, "connect", mode)
