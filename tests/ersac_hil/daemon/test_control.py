@@ -423,7 +423,9 @@ def test_cli_clients(learned, router, capsys):
     assert code == 1 and "invalid_request" in err and "theta[0][0]" in err
     code, _, err = _cli(router, capsys, "kappa", "set", "12")
     assert code == 2 and "kappa" in err
-    code, _, err = _cli(router, capsys, "weights", "set", "gravity=1")
-    assert code == 1 and "gravity" in err
+    code, _, err = _cli(router, capsys, "weights", "set", "gravity=1")  # no task's term
+    assert code == 2 and "gravity" in err
+    code, _, err = _cli(router, capsys, "weights", "set", "h_error_sq=1")  # lifting's, not bracing's
+    assert code == 1 and "h_error_sq" in err
     assert _snapshot(learned) == before
     _cli(router, capsys, "kappa", "set", "1")
