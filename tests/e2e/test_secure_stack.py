@@ -141,6 +141,10 @@ def test_observer_reads_but_cannot_steer_and_operator_sets_kappa(stack):
     with stack.client("observer") as observer, stack.client("operator") as operator:
         before = observer.state()
         assert before.status in ("stopped", "idle", "paused", "running") and before.episode_count >= EPISODES
+        with Store(stack.info["db"], readonly=True) as store:
+            answered = [a.episode_id for a in store.attempts(before.run_id) if a.cost_terms is not None]
+        for reader in (observer, operator):  # the run's history, as a late dashboard asks for it
+            assert [e.result.episode_id for e in reader.episodes()] == answered
         observer.put_raw("kappa", KappaCommand(7.5).to_json())  # dropped by the router
         with pytest.raises(NoAnswer):
             observer.select(SelectQuery(kappa=1.0, adopt=True))
