@@ -2,7 +2,10 @@
 
 ``can_backend`` is parametrised over every backend; each test gets a fresh channel (a new
 virtual channel name, a new loopback hub, a new CAN-over-Zenoh channel on the session's
-embedded router) so tests never hear each other.
+embedded router) so tests never hear each other. ``zenoh-tls`` is CAN over Zenoh through a
+router as ``ersac-hil certs init`` configures it (TLS, client certificates, access control by
+role), every participant with the ``agent`` role's config (the ``simulator`` role has the
+same CAN rule).
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 
-BACKENDS = ("virtual", "remote", "zenoh", "socketcan")
+BACKENDS = ("virtual", "remote", "zenoh", "zenoh-tls", "socketcan")
 
 
 @pytest.fixture(scope="session")
@@ -32,6 +35,19 @@ def can_router():
     """The embedded Zenoh router CAN-over-Zenoh channels of the test session go through."""
     with EmbeddedRouter() as router:
         yield router
+
+
+@pytest.fixture(scope="session")
+def secure_can_router(tmp_path_factory):
+    """A router as ``certs init`` configures it (TLS, client certificates, access control by
+    role) on a loopback address of its own; yields the certificate set (``configs[role]``)."""
+    from ersac_hil.certs import init_certs
+    from ersac_hil.zenoh_session import ZenohOptions, free_tcp_port, resolve_config
+    host = "127.0.0.7"
+    certs = init_certs(tmp_path_factory.mktemp("certs"), router=(f"tls/{host}:{free_tcp_port(host)}",))
+    config = resolve_config(ZenohOptions(config_file=str(certs.configs["router"])), mode="router")
+    with EmbeddedRouter(config=config):
+        yield certs
 
 
 @pytest.fixture(params=BACKENDS)
@@ -46,6 +62,10 @@ def can_backend(request):
     elif kind == "zenoh":
         router = request.getfixturevalue("can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{router.endpoint}")
+    elif kind == "zenoh-tls":
+        certs = request.getfixturevalue("secure_can_router")
+        yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}",
+                        options=(("zenoh_config", str(certs.configs["agent"])),))
     else:
         status = vcan_status("vcan0")
         if not status.available:

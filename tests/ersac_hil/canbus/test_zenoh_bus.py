@@ -1,6 +1,7 @@
 """The CAN-over-Zenoh python-can plugin: real buses through the session's embedded router.
 
-The CiA 301 conformance suite and the agent tests also run on it (``can_backend`` "zenoh");
+The CiA 301 conformance suite and the agent tests also run on it (``can_backend`` "zenoh",
+and "zenoh-tls" through a router with TLS and access control);
 here: the wire format, what python-can users rely on (entry point, order, own frames, filters,
 periodic tasks with modify_data), refusals, a bus spanning two processes, and a bus through
 a secured router (TLS, the roles' certificates and access control).
@@ -223,18 +224,6 @@ def test_pushed_frames_reach_listeners_in_order_until_stopped(pair):
     assert b.recv(TIMEOUT).arbitration_id == 0x300 and len(got) == 200  # queued for recv() again
 
 
-@pytest.fixture(scope="module")
-def secure_router(tmp_path_factory):
-    """A router as ``certs init`` configures it (TLS, client certificates, access control by
-    role) on a loopback address of its own; yields the certificate set."""
-    from ersac_hil.certs import init_certs
-    from ersac_hil.zenoh_session import EmbeddedRouter, ZenohOptions, free_tcp_port, resolve_config
-    certs = init_certs(tmp_path_factory.mktemp("certs"), router=(f"tls/127.0.0.7:{free_tcp_port('127.0.0.7')}",))
-    config = resolve_config(ZenohOptions(config_file=str(certs.configs["router"])), mode="router")
-    with EmbeddedRouter(config=config):
-        yield certs
-
-
 def _link(sender: can.BusABC, receiver: can.BusABC, arbitration_id: int) -> can.Message | None:
     deadline = time.monotonic() + TIMEOUT
     while time.monotonic() < deadline:
@@ -245,14 +234,14 @@ def _link(sender: can.BusABC, receiver: can.BusABC, arbitration_id: int) -> can.
     return None
 
 
-def test_agent_and_simulator_share_a_bus_over_tls_and_other_roles_are_kept_off(secure_router):
+def test_agent_and_simulator_share_a_bus_over_tls_and_other_roles_are_kept_off(secure_can_router):
     """The demo's --secure CAN bus: endpoints and identities from the roles' config files."""
     channel = f"s-{uuid.uuid4().hex[:8]}"
-    buses = {role: can.Bus(interface="zenoh", channel=channel, zenoh_config=str(secure_router.configs[role]))
+    buses = {role: can.Bus(interface="zenoh", channel=channel, zenoh_config=str(secure_can_router.configs[role]))
              for role in ("agent", "simulator", "observer")}
     try:
         agent, simulator, observer = buses["agent"], buses["simulator"], buses["observer"]
-        assert "tls/127.0.0.7:" in agent.channel_info
+        assert "tls/127.0.0.7:" in agent.channel_info  # endpoints from the file
         assert _link(simulator, agent, 0x181) is not None and _link(agent, simulator, 0x201) is not None
         for _ in range(20):
             observer.send(can.Message(arbitration_id=0x7, data=b"\x00"))  # dropped by the router
@@ -265,8 +254,8 @@ def test_agent_and_simulator_share_a_bus_over_tls_and_other_roles_are_kept_off(s
             bus.shutdown()
 
 
-def test_a_plain_channel_cannot_reach_the_secured_router(secure_router):
-    endpoint = json.loads(zenoh.Config.from_file(str(secure_router.configs["agent"])).get_json("connect/endpoints"))[0]
+def test_a_plain_channel_cannot_reach_the_secured_router(secure_can_router):
+    endpoint = json.loads(zenoh.Config.from_file(str(secure_can_router.configs["agent"])).get_json("connect/endpoints"))[0]
     with pytest.raises(can.CanInitializationError):
         can.Bus(interface="zenoh", channel=f"c@tcp/{endpoint.split('/', 1)[1]}", connect_timeout=0.5)
 
