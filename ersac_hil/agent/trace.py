@@ -81,6 +81,9 @@ class CanRecorder:
                     stamp = msg.timestamp if abs(msg.timestamp - now) < 3600 else now
                     begin, end = self._window
                     if self._writer is not None and begin <= stamp <= end:
+                        # one bus per trace; python-can's writers would take the channel name's
+                        # trailing digits as its number (BLF: 16 bits, 'trace-1a970355' overflows)
+                        msg.channel = None
                         self._writer.on_message_received(msg)
                         self.frames += 1
                     self._seen = max(self._seen, stamp)

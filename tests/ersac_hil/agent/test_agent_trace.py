@@ -66,3 +66,23 @@ def test_asc_traces_and_frames_between_episodes_are_dropped(tmp_path):
     assert [f.data[0] for f in frames] == list(range(20))
     with pytest.raises(ValueError, match="format"):
         CanRecorder(config, tmp_path, "mf4")
+
+
+@pytest.mark.parametrize("fmt", ["blf", "asc"])
+def test_a_channel_name_ending_in_a_large_number_is_recorded(tmp_path, fmt):
+    """python-can's writers take a channel's trailing digits as its number (BLF: 16 bits): a
+    virtual channel such as ``trace-1a970355`` (or a Zenoh one ending in a port) must not stop
+    the tap."""
+    config = BusConfig("virtual", f"trace-{uuid.uuid4().hex[:3]}99999")
+    sender = open_bus(config)
+    recorder = CanRecorder(config, tmp_path, fmt).start()
+    try:
+        recorder.begin("e1")
+        for i in range(3):
+            sender.send(can.Message(arbitration_id=0x181, data=[i]))
+        wait_until(lambda: recorder.frames >= 3, what="three frames in the trace")
+        assert recorder.end() == f"e1.{fmt}"
+    finally:
+        recorder.stop()
+        sender.shutdown()
+    assert [f.data[0] for f in can.LogReader(str(tmp_path / f"e1.{fmt}"))] == [0, 1, 2]
