@@ -136,9 +136,14 @@ def test_missing_simulator_is_a_fault_not_a_hang():
 def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
     config = new_config()
     robot = SimulatedRobot(config)
+    # patient (a loaded machine's late TPDO or heartbeat is not the fault under test), a node's
+    # silence still noticed by its TPDOs first, as with the defaults
+    timing = replace(PATIENT, heartbeat_timeout_s=2 * PATIENT.deadline_s)
     try:
-        with AgentBus(config) as bus:
+        with AgentBus(config, timing=timing) as bus:
             bus.wait_for_nodes()
+            patient_sdo(bus.nodes.values())
+            patient_controllers(bus.nodes.values())
             runner = EpisodeRunner(bus)
 
             def inject():
