@@ -58,16 +58,17 @@ def wait_for_agent(session, keys: KeySpace = KS) -> list[str]:
                                if r.ok is not None], what="the agent's liveliness token")
 
 
-def when_sync_flows(bus_config, action) -> threading.Thread:
-    """Run ``action`` in a thread as soon as a SYNC (an episode running) appears on the bus."""
+def when_sync_flows(bus_config, action, syncs: int = 1) -> threading.Thread:
+    """Run ``action`` in a thread as soon as ``syncs`` SYNCs (an episode running) crossed the bus."""
     bus = open_bus(bus_config)
 
     def watch() -> None:
         try:
-            deadline = time.monotonic() + 60
+            deadline, seen = time.monotonic() + 60, 0
             while time.monotonic() < deadline:
                 frame = bus.recv(timeout=1.0)
-                if frame is not None and frame.arbitration_id == cobid.SYNC:
+                seen += frame is not None and frame.arbitration_id == cobid.SYNC
+                if seen >= syncs:
                     action()
                     return
         finally:
@@ -217,7 +218,9 @@ def test_killing_the_simulator_mid_episode_is_a_fault():
         try:
             with AgentService(config), router.open_client() as session:
                 assert wait_for_agent(session)
-                killer = when_sync_flows(hub.bus_config, sim.kill)  # mid-episode
+                # mid-episode: the lock-step SYNC loop runs, the task's spline is downloaded (by
+                # SDO after the first cycle: a kill then is an SDO fault, fault_simulator)
+                killer = when_sync_flows(hub.bus_config, sim.kill, syncs=3)
                 result, error = ask(session, request("lifting", SENSIBLE_LIFT))
                 killer.join(timeout=60)
                 assert sim.poll() is not None, "the simulator was not killed during the episode"
