@@ -379,18 +379,25 @@ def test_clients_refuse_invalid_values_locally(client):
 
 def test_control_plane_serves_while_learning(router, agent_factory, daemon_factory):
     agent_factory("busy", delay_s=0.05)
-    daemon = daemon_factory("busy", episodes=30)
+    daemon = daemon_factory("busy", episodes=200)  # outlasts the asking below (stopped at teardown)
     answers = []
+
+    def first_answer(c: LearnerClient) -> bool:
+        try:  # the daemon's queryable reaches the router a moment after start() returned
+            return c.state(timeout_s=1.0) is not None
+        except NoAnswer:
+            return False
 
     def ask() -> None:
         with LearnerClient(KeySpace("busy"), [router.endpoint], timeout_s=20.0) as c:
+            wait_until(lambda: first_answer(c), what="the learner's first answer")
             while not daemon.finished.is_set() and len(answers) < 20:
                 answers.append(c.state().episode_count)
 
     thread = threading.Thread(target=ask)
     thread.start()
     thread.join(60)
-    assert len(answers) >= 5 and answers == sorted(answers)
+    assert len(answers) >= 5 and answers == sorted(answers) and not daemon.finished.is_set()
 
 
 # --------------------------------------------------------------------------- CLI clients
