@@ -16,7 +16,10 @@ from protocol.can.devices import AGENT_NODE_ID
 from protocol.can.objects import Index
 
 PATIENCE_MS = 5000
-PATIENT = BusTiming(deadline_s=PATIENCE_MS / 1000, heartbeat_timeout_s=PATIENCE_MS / 1000)
+PATIENCE_S = PATIENCE_MS / 1000
+"""Also how long a test waits for nodes it just started to send their first heartbeat (the
+agent's own check, ``AgentBus.wait_for_nodes``, allows two heartbeat periods)."""
+PATIENT = BusTiming(deadline_s=PATIENCE_S, heartbeat_timeout_s=PATIENCE_S)
 """The agent waits this long for a TPDO or a node's heartbeat."""
 PATIENT_AGENT_FLAGS = ("--deadline-ms", str(PATIENCE_MS), "--heartbeat-timeout-ms", str(PATIENCE_MS))
 """The same for an ``ersac-hil agent`` process."""

@@ -6,7 +6,7 @@ import pytest
 
 from ersac_hil.agent.bus import AgentBus
 from helpers.can_nodes import ReferenceNodes
-from helpers.timing import PATIENT_CONSUMER
+from helpers.timing import PATIENCE_S, PATIENT_CONSUMER
 from protocol.can.devices import DEVICES
 from protocol.can.objects import Index
 
@@ -40,5 +40,5 @@ def reference_nodes(can_backend):
 @pytest.fixture
 def agent_bus(reference_nodes, can_backend):
     with AgentBus(can_backend) as bus:
-        bus.wait_for_nodes()
+        bus.wait_for_nodes(timeout_s=PATIENCE_S)
         yield bus

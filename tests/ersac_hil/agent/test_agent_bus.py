@@ -12,6 +12,7 @@ from ersac_hil.agent.errors import (AgentFault, ConfigRefused, HeartbeatLost,
                                     NodeMissing, PdoTimeout)
 from ersac_hil.agent.telemetry import ACTUATED, JOINTS, STATUS_DEVICES, Commands
 from helpers.can_nodes import heartbeats
+from helpers.timing import PATIENCE_S
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can import objects as obj
@@ -26,7 +27,7 @@ i16 = st.integers(-32768, 32767)
 
 
 def test_nodes_found_and_started(agent_bus):
-    agent_bus.wait_for_nodes(DEVICES)  # the fixture waited for the cyclic nodes only
+    agent_bus.wait_for_nodes(DEVICES, timeout_s=PATIENCE_S)  # the fixture waited for the cyclic nodes only
     assert set(agent_bus.nmt_states()) >= {"wheels", "imu", "testbench"}
     assert all(s == "PRE-OPERATIONAL" for s in agent_bus.nmt_states().values())
     agent_bus.nmt_start()
@@ -164,7 +165,7 @@ def test_sdo_write_read_with_scaling_and_typed_refusal(agent_bus):
 def test_realtime_mode_paces_sync_by_the_wall_clock(reference_nodes, can_backend):
     timing = BusTiming(period_s=0.005, realtime=True)
     with AgentBus(can_backend, timing=timing) as bus:
-        bus.wait_for_nodes()
+        bus.wait_for_nodes(timeout_s=PATIENCE_S)
         bus.nmt_start()
         t0 = time.perf_counter()
         for _ in range(41):

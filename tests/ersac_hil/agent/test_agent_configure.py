@@ -12,6 +12,7 @@ from canopen.objectdictionary import ODVariable
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.configure import ARMS, apply_impedance, download_spline
 from ersac_hil.agent.policies import ArmImpedance, Spline
+from helpers.timing import PATIENCE_S
 from protocol.can.devices import ARM_LEFT, object_dictionary
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Index, spline_position_index, spline_velocity_index
@@ -25,7 +26,7 @@ def configured(make_reference_nodes):
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
     nodes = make_reference_nodes(config, ARMS)
     with AgentBus(config, devices=ARMS) as bus:
-        bus.wait_for_nodes(ARMS)
+        bus.wait_for_nodes(ARMS, timeout_s=PATIENCE_S)
         yield bus, nodes
 
 

@@ -15,7 +15,7 @@ from ersac_hil.agent.tasks import BracingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import at_sync
-from helpers.timing import PATIENT, patient_controllers, patient_sdo
+from helpers.timing import PATIENCE_S, PATIENT, patient_controllers, patient_sdo
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Scenario
 from protocol.zenoh import EpisodeRequest
@@ -33,7 +33,7 @@ def rig():
     config = new_config()
     robot = SimulatedRobot(config)
     bus = AgentBus(config, timing=PATIENT).open()
-    bus.wait_for_nodes()
+    bus.wait_for_nodes(timeout_s=PATIENCE_S)
     patient_sdo(bus.nodes.values())
     patient_controllers(bus.nodes.values())
     assert {n.consumer_timeout() for n in robot.nodes.values()} == {PATIENT.heartbeat_timeout_s}
@@ -141,7 +141,7 @@ def test_fault_mid_episode_ends_it_with_status_and_no_cost(fault):
     timing = replace(PATIENT, heartbeat_timeout_s=2 * PATIENT.deadline_s)
     try:
         with AgentBus(config, timing=timing) as bus:
-            bus.wait_for_nodes()
+            bus.wait_for_nodes(timeout_s=PATIENCE_S)
             patient_sdo(bus.nodes.values())
             patient_controllers(bus.nodes.values())
             runner = EpisodeRunner(bus)
@@ -168,7 +168,7 @@ def test_realtime_episode_paces_sync_by_the_wall_clock():
     config = new_config()  # patient: a loaded machine's late TPDO is not what this test is about
     with SimulatedRobot(config, realtime=True) as robot, \
             AgentBus(config, timing=replace(PATIENT, realtime=True)) as bus:
-        bus.wait_for_nodes()
+        bus.wait_for_nodes(timeout_s=PATIENCE_S)
         patient_sdo(bus.nodes.values())
         patient_controllers(bus.nodes.values())
         runner = EpisodeRunner(bus)
