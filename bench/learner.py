@@ -53,7 +53,7 @@ KAPPAS = (0.0, 2.0)
 REPEATS = 4  # evaluations per candidate for CMA-ES, random search and MV-BO
 TOL = 0.05  # "within 5 % of the range" (first time)
 SETTLE = 0.05  # "settled": within 5 % from some episode to the end of the budget
-INTERLEAVE = 5  # ERSAC (interleaved): every 5th update moves to the local argmin of F~
+INTERLEAVE = 1  # ERSAC (interleaved): every update may move to the local argmin of F~ (gated)
 Fn = Callable[[np.ndarray], np.ndarray]
 
 

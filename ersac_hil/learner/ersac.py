@@ -69,6 +69,14 @@ from .errors import (
 #: updates of the benchmark problems and stops single outlier episodes from throwing theta.
 MAX_STEP = 3.0
 
+#: Interleaved search (interleave_every > 0), docs/learner.md: the argmin of F~ is searched
+#: within GREEDY_RADIUS sqrt(d) sigma of the fit's observations near theta; the move is taken
+#: only if it is at least GREEDY_MIN_MOVE sigma (in some coordinate) and the critic is
+#: confident of the gain: F~(argmin) + GREEDY_Z sd(F~(argmin)) < F~(theta).
+GREEDY_RADIUS = 1.5
+GREEDY_MIN_MOVE = 1.0
+GREEDY_Z = 2.0
+
 STATE_FORMAT = "ersac-hil/ersac-state"
 STATE_VERSION = 1
 
@@ -470,20 +478,7 @@ class ERSAC:
         clipped = bool(np.any(raw != new_theta))
         offline = False
         if self._interleave > 0 and (self._n_updates + 1) % self._interleave == 0:
-            # a local greedy move: the region is the fit's points within epsilon / 2 of theta
-            # (the whole neighbourhood let the argmin run back to where the run started)
-            cfg = self._selection_config()
-            X = np.asarray(fit.model.X)
-            region = X[np.linalg.norm(X - new_theta, axis=1) <= cfg.radius]
-            if region.shape[0] > 0:
-                with single_threaded_blas():
-                    sel = minimise_on_fit(fit, self.bounds, kappa, new_theta, cfg, region=region)
-                    here = fit.estimate(new_theta, kappa)
-                    there = fit.estimate(sel.theta, kappa)
-                # move only where the critic is confident of the gain: the argmin's F~ plus
-                # two posterior stds of J~ there below F~ at the gradient step's theta
-                if there.F + 2.0 * math.sqrt(max(there.J_var, 0.0)) < here.F:
-                    new_theta, offline = sel.theta.copy(), True
+            new_theta, offline = self._greedy_move(fit, new_theta, kappa)
         upd = Update(
             self._n_updates, theta, new_theta.copy(), executed, z, float(row(J_hat)), J_t, r_t,
             float(row(r_p)), float(row(deltas)), kappa, alpha, False, clipped, int(fit.ids.size),
@@ -491,10 +486,29 @@ class ERSAC:
         )
         return upd, new_theta, fit
 
-    def _selection_config(self) -> "SelectionConfig":
+    def _greedy_move(self, fit: LocalFit, theta: np.ndarray, kappa: float) -> tuple[np.ndarray, bool]:
+        """Interleaved search: theta, or the argmin of F~ of this update's critic near theta
+        if the critic is confident of the gain there (see ERSAC's module doc)."""
+        X = np.asarray(fit.model.X)
+        d = self._d
+        region = X[np.linalg.norm(X - theta, axis=1) <= 0.5 * self._critic.config.epsilon]
+        if region.shape[0] == 0:
+            return theta, False
         from .selection import SelectionConfig
 
-        return SelectionConfig(radius=0.5 * self._critic.config.epsilon)
+        cfg = SelectionConfig(radius=GREEDY_RADIUS * math.sqrt(d) * float(self._sigma.min()))
+        with single_threaded_blas():
+            sel = minimise_on_fit(fit, self.bounds, kappa, theta, cfg, region=region)
+            here = fit.estimate(theta, kappa)
+            there = fit.estimate(sel.theta, kappa)
+        # moves below a sigma are left to the gradient steps; confident: sd(F~) from the
+        # posterior of J~ and of g (var r~ ~ r~^2 var(g) / 4), measured in docs/learner.md
+        travels = float(np.max(np.abs(sel.theta - theta) / self._sigma)) >= GREEDY_MIN_MOVE
+        g_var = float(fit.predict(sel.theta[None, :]).g_var[0])
+        sd = math.sqrt(max(there.J_var, 0.0) + kappa**2 * there.r**2 * g_var / 4.0)
+        if travels and there.F + GREEDY_Z * sd < here.F:
+            return sel.theta.copy(), True
+        return theta, False
 
     def observe(self, executed: object, cost: Mapping[str, float] | float) -> int:
         """Add a past observation without an update (rebuilding the critic); returns its index."""
