@@ -112,6 +112,16 @@ def test_interleaved_search_moves_to_the_local_argmin_every_k_updates() -> None:
     assert L.tell(xa, 2.0).to_dict() == R.tell(xb, 2.0).to_dict()
 
 
+def test_interleaved_moves_leave_sub_sigma_moves_to_the_gradient_step() -> None:
+    """Greedy moves go at least one sigma (0.1) from where the gradient step went (without
+    the rule seeds 1 and 4 make moves of less than a sigma; seed 3 moves with it)."""
+    moves = [u for seed in (1, 3, 4) for u in run(make(interleave_every=1, kappa=2.0, seed=seed), 30) if u.offline]
+    assert moves
+    for u in moves:
+        stepped = np.clip(u.theta_before - u.step_scale * u.step_size * u.td_error * u.z, *BOUNDS[0])
+        assert abs(u.theta_after[0] - stepped[0]) >= 0.1 - 1e-9
+
+
 @pytest.mark.parametrize("kw", [dict(max_step=0.0), dict(max_step=-1.0), dict(max_step=float("nan")),
                                 dict(interleave_every=-1), dict(interleave_every=1.5), dict(interleave_every=True)])
 def test_bad_options_are_refused(kw) -> None:  # noqa: ANN001
