@@ -87,7 +87,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     from ersac_hil.demo import ChildFailed, Stack
 
     from . import bracing, contexts, lifting, results
-    from .provenance import fingerprint
+    from .provenance import fingerprint, guard
     from .runner import JobFailed, Pool, Progress
     from .trials import TrialStore
 
@@ -107,7 +107,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
         f"simulator/agent pair(s); output in {out}")
     stack = Stack(out / "logs", stop, lambda line: say(f"reproduce: {line}"), pairs=pairs)
     trials = TrialStore(out / "trials.db")
-    pool = Pool(stack, trials, stop, say)
+    pool = Pool(stack, trials, stop, say, before_job=guard(meta["model"]))
     try:
         with Progress(total, count, pool):
             for name in experiments:

@@ -12,12 +12,17 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["SOURCES", "fingerprint", "mismatch"]
+__all__ = ["SOURCES", "CodeChanged", "fingerprint", "mismatch", "guard"]
 
 #: The packages whose code makes an episode's outcome (the simulator is looked up, never imported).
 SOURCES = ("firmware_sim", "ersac_hil.agent", "protocol.zenoh")
+
+
+class CodeChanged(RuntimeError):
+    """The simulator/agent code changed during a run (the message says which package)."""
 
 
 def _root(package: str) -> Path | None:
@@ -48,3 +53,14 @@ def mismatch(recorded: dict[str, str] | None, current: dict[str, str]) -> list[s
     if not recorded:
         return []
     return sorted(k for k in set(recorded) | set(current) if recorded.get(k) != current.get(k))
+
+
+def guard(recorded: dict[str, str]) -> Callable[[], None]:
+    """A check that raises ``CodeChanged`` once the code differs from ``recorded``."""
+    def check() -> None:
+        changed = mismatch(recorded, fingerprint())
+        if changed:
+            raise CodeChanged(f"the simulator/agent code changed during the run ({', '.join(changed)}): "
+                              "its episodes must not be mixed; finish it with the code it started with, "
+                              "or start again in another --out")
+    return check

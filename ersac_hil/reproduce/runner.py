@@ -86,11 +86,14 @@ class Pool:
         trials: the trial store.
         stop: set on Ctrl-C; jobs end early, :meth:`run` raises ``Stopped``.
         say: progress lines.
+        before_job: called before every job; an exception from it ends the run (no further
+            job is started): e.g. ``provenance.guard``.
     """
 
     def __init__(self, stack: Stack, trials: TrialStore, stop: threading.Event,
-                 say: Callable[[str], None] = print) -> None:
+                 say: Callable[[str], None] = print, before_job: Callable[[], None] | None = None) -> None:
         self.stack, self.trials, self.stop, self.say = stack, trials, stop, say
+        self.before_job = before_job
         self.session = None
         self.workers: list[Worker] = []
 
@@ -121,13 +124,22 @@ class Pool:
         for job in jobs:
             todo.put(job)
         errors: list[str] = []
+        halted: list[str] = []
 
         def work(worker: Worker) -> None:
-            while not self.stop.is_set():
+            while not self.stop.is_set() and not halted:
                 try:
                     label, job = todo.get_nowait()
                 except queue.Empty:
                     return
+                if self.before_job is not None:
+                    try:
+                        self.before_job()
+                    except Exception as exc:  # noqa: BLE001 - no further job starts
+                        if not halted:
+                            halted.append(str(exc))
+                            self.say(f"stopping: {exc}")
+                        return
                 worker.doing = label
                 try:
                     job(worker)
@@ -149,8 +161,8 @@ class Pool:
                 self.stack.check()
         if self.stop.is_set():
             raise Stopped
-        if errors:
-            raise JobFailed("; ".join(errors))
+        if halted or errors:
+            raise JobFailed("; ".join(halted + errors))
 
     # ------------------------------------------------------------------ job makers
     def trial_jobs(self, specs: Sequence[TrialSpec], label: str) -> list[tuple[str, Callable[[Worker], None]]]:

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 
+import pytest
+
 from ersac_hil.cli import main
-from ersac_hil.reproduce.provenance import SOURCES, fingerprint, mismatch
+from ersac_hil.reproduce.provenance import SOURCES, CodeChanged, fingerprint, guard, mismatch
 from ersac_hil.reproduce.plan import QUICK
 
 
@@ -32,3 +34,10 @@ def test_episodes_of_another_simulator_are_not_mixed_with_new_ones(tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert "other simulator/agent code (changed: firmware_sim)" in err and "\n" not in err
     assert (out / "plan.json").read_text() == text and sorted(p.name for p in out.iterdir()) == ["plan.json"]
+
+
+def test_the_guard_stops_a_run_whose_code_changed_under_it():
+    now = fingerprint()
+    guard(now)()  # unchanged: nothing
+    with pytest.raises(CodeChanged, match=r"changed during the run \(ersac_hil.agent\)"):
+        guard({**now, "ersac_hil.agent": "0" * 16})()
