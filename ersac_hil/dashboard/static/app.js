@@ -247,6 +247,11 @@ function wireControls() {
   slider.addEventListener("input", () => { dirty.add("kappa"); number.value = slider.value; });
   slider.addEventListener("change", () => setKappa(slider.value));
   number.addEventListener("input", () => { dirty.add("kappa"); slider.value = number.value; });
+  // a state refresh must not refill the field while someone edits it (clearing it fires no input)
+  number.addEventListener("focus", () => dirty.add("kappa"));
+  number.addEventListener("blur", () => {  // left as it was: follow the learner again
+    if (D.state && number.value !== "" && Number(number.value) === D.state.kappa) dirty.delete("kappa");
+  });
   number.addEventListener("keydown", (e) => { if (e.key === "Enter") setKappa(number.value); });
   $("kappa-apply").addEventListener("click", () => setKappa(number.value));
   $("weights-apply").addEventListener("click", setWeights);
