@@ -464,33 +464,39 @@ class VHGP:
         _, lf, lsf, lg, lsg, _ = unpack(self._p, n, d)
         return se_ard(Xt, self._X, lf, lsf), se_ard(Xt, self._X, lg, lsg)
 
-    def predict(self, Xs: object) -> VHGPPrediction:
-        """Posterior of f and g at Xs (m, d)."""
-        self._check()
+    def _posterior(self, Xt: np.ndarray) -> tuple[VHGPPrediction, np.ndarray, np.ndarray]:
+        """Posterior of f and g at checked inputs Xt (m, d), with the cross-kernels (m, n)
+        of f and g it used (the gradient reuses them)."""
         n, d = self._X.shape
-        Xt = check_xs(Xs, d)
         _, _, lsf, _, lsg, mu0 = unpack(self._p, n, d)
         sc = self._std.scale
-        with single_threaded_blas():
-            Kfs, Kgs = self._kernels(Xt)
-            Vf = la.tri_solve(self._LK, Kfs.T)
-            Vg = la.tri_solve(self._LB, self._s[:, None] * Kgs.T)
-        return VHGPPrediction(
+        Kfs, Kgs = self._kernels(Xt)
+        Vf = la.tri_solve(self._LK, Kfs.T)
+        Vg = la.tri_solve(self._LB, self._s[:, None] * Kgs.T)
+        pred = VHGPPrediction(
             f_mean=self._std.mean + sc * (Kfs @ self._alpha),
             f_var=sc * sc * np.maximum(math.exp(lsf) - (Vf * Vf).sum(0), 0.0),
             g_mean=Kgs @ self._beta + mu0 + 2.0 * math.log(sc),
             g_var=np.maximum(math.exp(lsg) - (Vg * Vg).sum(0), 0.0),
         )
+        return pred, Kfs, Kgs
+
+    def predict(self, Xs: object) -> VHGPPrediction:
+        """Posterior of f and g at Xs (m, d)."""
+        self._check()
+        Xt = check_xs(Xs, self._X.shape[1])
+        with single_threaded_blas():
+            return self._posterior(Xt)[0]
 
     def predict_with_gradient(self, Xs: object) -> tuple[VHGPPrediction, VHGPPredictionGradient]:
         """predict(Xs) and the derivatives of its fields with respect to the inputs, (m, d)."""
-        pred = self.predict(Xs)
+        self._check()
         n, d = self._X.shape
         Xt = check_xs(Xs, d)
         _, lf, _, lg, _, _ = unpack(self._p, n, d)
         sc = self._std.scale
         with single_threaded_blas():
-            Kfs, Kgs = self._kernels(Xt)
+            pred, Kfs, Kgs = self._posterior(Xt)
             dKf = se_ard_input_grad(Xt, self._X, Kfs, lf)  # (m, n, d)
             dKg = se_ard_input_grad(Xt, self._X, Kgs, lg)
             Uf = la.chol_solve(self._LK, Kfs.T)  # (n, m) = K^-1 kf*
