@@ -107,8 +107,10 @@ class Landscape:
                 "F2_gap": g, "F2_gap_se": se, "F2_gap_in_se": g / se if se > 0 else (math.inf if g > 0 else 0.0)}
 
     def markdown(self) -> str:
-        head = ("| theta | K (N m/rad) | mean J | std J | F2 = mean + 2 std | damage | fallen | "
-                + " | ".join(self.term_names) + " |")
+        # the rates of damage and falls first, then each cost term's mean (the damage term
+        # is the damage indicator, so its mean repeats the rate: it is labelled as a term)
+        head = ("| theta | K (N m/rad) | mean J | std J | F2 = mean + 2 std | damage rate | fallen rate | "
+                + " | ".join(f"mean {t}" for t in self.term_names) + " |")
         lines = [head, "|" + "---|" * (7 + len(self.term_names))]
         for r in self.rows():
             lines.append(f"| {r['theta']:.2f} | {r['stiffness']:.1f} | {r['mean']:.1f} +- {r['mean_se']:.1f} "

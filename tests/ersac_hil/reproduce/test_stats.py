@@ -31,6 +31,16 @@ def test_risk_averse_optimum_is_where_the_spread_is_small():
     assert len(land.rows()) == 5 and "argmin mean + 2 std: theta 0.50" in land.markdown()
 
 
+def test_the_table_names_each_column_once_even_for_a_damage_term():
+    rng = np.random.default_rng(1)
+    J = rng.normal(5.0, 1.0, (3, 20))
+    dmg = (rng.random((3, 20)) < 0.3).astype(float)
+    land = Landscape.from_arrays(np.linspace(0, 1, 3), J, dmg, np.zeros_like(J), ("damage", "power"),
+                                 np.stack([dmg, J], axis=-1), n_boot=50)
+    head = [c.strip() for c in land.markdown().splitlines()[0].strip("|").split("|")]
+    assert len(head) == len(set(head)) and "damage rate" in head and "mean damage" in head
+
+
 def test_the_same_optimum_has_no_gap():
     land = _landscape(means=[3, 2, 1], stds=[1, 1, 1])
     assert land.theta_min(0.0) == land.theta_min(2.0) == 1.0
