@@ -494,8 +494,6 @@ class ERSAC:
         region = X[np.linalg.norm(X - theta, axis=1) <= 0.5 * self._critic.config.epsilon]
         if region.shape[0] == 0:
             return theta, False
-        from .selection import SelectionConfig
-
         cfg = SelectionConfig(radius=GREEDY_RADIUS * math.sqrt(d) * float(self._sigma.min()))
         with single_threaded_blas():
             sel = minimise_on_fit(fit, self.bounds, kappa, theta, cfg, region=region)
@@ -541,8 +539,6 @@ class ERSAC:
     def select(self, kappa: float | None = None, **options: Any) -> "Selection":
         """Offline policy selection for kappa (default: the current kappa); no episodes.
         options: fields of SelectionConfig (radius, n_starts, max_points, ...)."""
-        from .selection import SelectionConfig, select_policy
-
         k = self._kappa if kappa is None else finite_real(kappa, "kappa", InvalidKappaError)
         self._check_resume()
         if "radius" not in options:
@@ -625,4 +621,4 @@ class ERSAC:
         return learner
 
 
-from .selection import Selection, SelectionConfig, minimise_on_fit  # noqa: E402  (avoids an import cycle)
+from .selection import Selection, SelectionConfig, minimise_on_fit, select_policy  # noqa: E402  (avoids an import cycle)
