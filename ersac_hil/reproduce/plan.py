@@ -2,8 +2,9 @@
 
 Sizes follow the paper (PAPER.md) and issue's statistics: bracing 45 learning episodes per
 run, >= 10 paired run seeds (kappa 2 and kappa 0 with the same run seed: the same scenario
-seeds and the same perturbation draws), a Monte Carlo landscape of 30 episodes per theta on a
-0.05 grid, 52 random policies for the Fig. 2 fit; lifting 30 episodes per run, >= 5 run seeds,
+seeds and the same perturbation draws), a Monte Carlo landscape of 100 episodes per theta on a
+0.05 grid (the issue asks >= 30; 100 is the size at which its F2 target is decided: see
+``LANDSCAPE_EPISODES``), 52 random policies for the Fig. 2 fit; lifting 30 episodes per run, >= 5 run seeds,
 10 test trials of the initial policy and of the policies after 15 and 30 episodes; contexts:
 5 risk-averse episodes after the offline selection, 10 test trials per column. ``QUICK`` is a
 tiny variant that exercises the same code (CI, smoke tests); its figures mean nothing.
@@ -31,6 +32,12 @@ KAPPAS = (2.0, 0.0)
 #: Seed of the random-policy draw of Fig. 2.
 RANDOM_POLICY_SEED = 52
 RANDOM_SCENARIO_BASE = 500_000
+#: Episodes per theta of the landscape. The issue's target "F2 = mean + 2 std at argmin mean
+#: and at argmin F2 differ by > 3 bootstrap SE" needs more than its minimum of 30: measured
+#: (bench/bracing_sweep.py and reproduce, seeds 0..n-1) the gap is ~50 and its paired SE 23.4
+#: at 30 seeds (2.3 SE), 10.7 at 100 (4.6 SE); the SE falls as 1/sqrt(n), so ~60 would be
+#: just at 3 SE. 100 leaves a margin (~+17 min of one pair over 30).
+LANDSCAPE_EPISODES = 100
 TEST_SCENARIO_BASE = 600_000
 
 #: Risk contexts of Fig. 6 (paper 5.2): a re-weighting of the lifting cost terms (the others
@@ -52,7 +59,7 @@ class Sizes:
     bracing_seeds: int = 10
     bracing_episodes: int = 45
     landscape_step: float = 0.05
-    landscape_episodes: int = 30
+    landscape_episodes: int = LANDSCAPE_EPISODES
     random_policies: int = 52
     fig1_after: tuple[int, ...] = (5, 15, 35, 45)
     last_window: int = 15
