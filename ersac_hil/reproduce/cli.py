@@ -2,8 +2,9 @@
 lifetime, the experiments in order, the analysis and the results files.
 
 Exit codes: 0 done (whether or not the targets are met: results.md says), 1 a job failed (the
-run stays resumable), 2 invalid arguments or an output directory made with other sizes,
-128+N after signal N (resumable).
+run stays resumable), 2 invalid arguments or an output directory that does not fit
+(``planfile``: other sizes asked for, other episode code, learning runs of other learner
+code), 128+N after signal N (resumable).
 """
 from __future__ import annotations
 
@@ -62,32 +63,30 @@ def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # n
     return total, count
 
 
-def _check_plan(out: Path, meta: dict) -> str | None:
-    """An error if ``out`` was made with other sizes or its episodes by other simulator/agent
-    code (``provenance.fingerprint``), else ``None`` (and ``plan.json`` written)."""
-    from .provenance import mismatch
+def _plan(out: Path, experiments, requested, explicit: bool):  # noqa: ANN001, ANN202
+    """``planfile.resolve`` on ``out``'s ``plan.json``; writes the new record and returns the
+    ``Resolved`` sizes, or raises ``PlanConflict`` (nothing written)."""
+    from .planfile import resolve
+    from .provenance import LEARNING, fingerprint
     path = out / "plan.json"
-    if path.exists():
-        old = json.loads(path.read_text())
-        if old.get("sizes") != json.loads(json.dumps(meta["sizes"])):
-            return (f"{out} holds a reproduce run with other sizes ({old.get('sizes')}); "
-                    "use another --out, or the same --seeds/--quick to resume it")
-        changed = mismatch(old.get("model"), meta["model"])
-        if changed:
-            return (f"{out} holds episodes of other simulator/agent code (changed: {', '.join(changed)}); "
-                    "they must not be mixed with new ones: use another --out")
-    path.write_text(json.dumps(meta, indent=1) + "\n")
-    return None
+    recorded = json.loads(path.read_text()) if path.exists() else None
+    existing = {p.stem for p in (out / "runs").glob("*.db")}
+    resolved = resolve(recorded, experiments, requested, explicit, fingerprint(), fingerprint(LEARNING), existing)
+    path.write_text(json.dumps(resolved.record, indent=1) + "\n")
+    return resolved
 
 
 def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading.Event,  # noqa: ANN001
-                  say: Callable[[str], None] = print, quick: bool = False) -> int:
-    """Run ``experiment`` (or ``all``), analyse, write the results. Returns an exit code."""
+                  say: Callable[[str], None] = print, explicit: bool = True) -> int:
+    """Run ``experiment`` (or ``all``) with ``sizes`` (``explicit``: asked for by an option;
+    else what ``out`` recorded for each experiment where it did), analyse, write the results.
+    Returns an exit code."""
     from ersac_hil.daemon.agents import Stopped
     from ersac_hil.demo import ChildFailed, Stack
 
     from . import bracing, contexts, lifting, results
-    from .provenance import fingerprint, guard
+    from .planfile import PlanConflict
+    from .provenance import LEARNING, fingerprint, guard
     from .runner import JobFailed, Pool, Progress
     from .trials import TrialStore
 
@@ -95,11 +94,14 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     experiments = EXPERIMENTS if experiment == "all" else (experiment,)
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"sizes": asdict(sizes), "quick": quick, "model": fingerprint()}
-    error = _check_plan(out, meta)
-    if error:
-        print(f"ersac-hil reproduce: {error}", file=sys.stderr)
+    try:
+        resolved = _plan(out, experiments, sizes, explicit)
+    except PlanConflict as exc:
+        print(f"ersac-hil reproduce: {out} {exc}", file=sys.stderr)
         return 2
+    sizes = resolved.sizes
+    code = {**resolved.record["model"], **fingerprint(LEARNING)}  # what the guard watches
+    meta = {"sizes": asdict(sizes), "quick": resolved.quick, "model": resolved.record["model"]}
     report = results.load(out)
     timing = report.get("meta", {}).get("timing", {})
     total, count = _count(out, sizes, experiments)
@@ -107,7 +109,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
         f"simulator/agent pair(s); output in {out}")
     stack = Stack(out / "logs", stop, lambda line: say(f"reproduce: {line}"), pairs=pairs)
     trials = TrialStore(out / "trials.db")
-    pool = Pool(stack, trials, stop, say, before_job=guard(meta["model"]))
+    pool = Pool(stack, trials, stop, say, before_job=guard(code))
     try:
         with Progress(total, count, pool):
             for name in experiments:
@@ -160,7 +162,7 @@ def _main(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         code = run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
-                             lambda line: print(line, flush=True), args.quick)
+                             lambda line: print(line, flush=True), args.quick or args.seeds is not None)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -171,10 +173,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``reproduce`` to the ``ersac-hil`` parser."""
     p = sub.add_parser("reproduce", help="the paper's experiments through the real stack; figures and results",
                        description="The paper's experiments (Figs. 1, 2, 4, 6 and their statistics) through the "
-                       "real stack: router, CAN hub, simulator, agent, daemon; resumable.")
+                       "real stack, the processes of the demo: Zenoh router, per simulator/agent pair a "
+                       "simulator and an agent talking CAN (over Zenoh by default), one daemon per learning "
+                       "run; resumable. Without --seeds/--quick an output directory's recorded sizes are "
+                       "taken over per experiment.")
     p.add_argument("experiment", choices=(*EXPERIMENTS, "all"))
     p.add_argument("--seeds", type=int, default=None,
-                   help="run seeds of bracing and lifting (default: bracing 10, lifting 5)")
+                   help="run seeds of bracing and lifting (default: bracing 10, lifting 5; "
+                   "without --seeds/--quick: what --out recorded for each experiment)")
     p.add_argument("--quick", action="store_true", help="a tiny variant of every experiment (smoke test)")
     p.add_argument("--out", type=output_dir, default="reproduce-results",
                    help="output directory (default ./reproduce-results)")

@@ -88,3 +88,15 @@ def test_describe_has_the_mu_plus_two_sigma_line():
     d = describe([1.0, 2.0, 3.0])
     assert d["mean"] == 2.0 and d["std"] == 1.0 and d["mu_2sigma"] == 4.0 and d["n"] == 3
     assert math.isnan(describe([])["mean"])
+
+
+def test_the_gap_error_is_paired_over_seeds_common_to_every_theta():
+    """Seed j is the same scenario at every theta (common random numbers): its draw moves the
+    F2 of both optima together, so the paired bootstrap SE of their difference is far below the
+    unpaired one, and a gap resolved by the pairing is reported as resolved."""
+    land = _landscape(means=[10.0, 5.5, 4.5], stds=[3.0, 2.5, 3.2])
+    i0, i2 = land.argmin(0.0), land.argmin(2.0)
+    assert (land.theta_min(0.0), land.theta_min(2.0)) == (1.0, 0.5)
+    gap, se = land.gap(2.0)
+    unpaired = math.hypot(land.se(2.0)[i0], land.se(2.0)[i2])
+    assert se < 0.3 * unpaired and gap / se > 3 > gap / unpaired
