@@ -7,8 +7,10 @@
 Problems with a known mean J(x) and noise std r(x): Goldberg, Williams, Yuan (1-D, the VHGP
 paper's sets), the bracing-shaped 1-D problem of bench/learner.py with the paper's bracing
 ball, the RAHBO sine (s = 1) and the heteroscedastic Branin (s = 1) (2-D, risk-averse BO
-benchmarks) and a 7-D problem on the lifting task's parameter box with the paper's lifting
-ball (sigma 0.075, epsilon 3.5 sigma).
+benchmarks), a 7-D problem on the lifting task's parameter box with the paper's lifting
+ball (sigma 0.075, epsilon 3.5 sigma), and lifting-drop: the same box and ball with the
+lifting task's two cost modes (a lift costs ~5 or, bottle dropped, ~40; the drop
+probability turns from 0 to 1 across about two ball radii).
 
 One replicate: a centre c (uniform inside the box, 2 sigma from its faces), n local points
 x_i = clip(c + 1.5 sigma N(0, I)) (an ERSAC run near c: policy drift plus perturbation), their
@@ -110,6 +112,22 @@ def _unit(X: np.ndarray) -> np.ndarray:
     return (X - _LIFT_LO) / (_LIFT_HI - _LIFT_LO)
 
 
+# the lifting task's two modes: a lift succeeds (cost ~5) or drops the bottle (~40), with a
+# probability that turns from 0 to 1 across about two epsilon balls (logistic in a direction
+# of the unit box); the mean and std follow from the Bernoulli mixture
+_DROP_W = np.array([0.5, -0.5, 0.0, 0.5, 0.0, -0.5, 0.0])
+_DROP_GAP, _DROP_BASE, _DROP_SCALE = 35.0, 0.3, 0.05
+
+
+def _drop_p(X: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-((_unit(X) - 0.5) @ _DROP_W) / _DROP_SCALE))
+
+
+def _drop_sample(X: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    base = 5.0 + _DROP_BASE * rng.standard_normal(len(X))
+    return base + _DROP_GAP * (rng.uniform(size=len(X)) < _drop_p(X))
+
+
 def _problems() -> dict[str, CalProblem]:
     one = np.array([0.0]), np.array([1.0])
     g, w, y = _ds("goldberg"), _ds("williams"), _ds("yuan")
@@ -138,6 +156,11 @@ def _problems() -> dict[str, CalProblem]:
             "lifting-7d", _LIFT_LO, _LIFT_HI, lambda X: 1.0 + (_LIFT_A * (_unit(X) - _LIFT_M) ** 2).sum(1),
             lambda X: 0.15 * np.exp(4.0 * (_unit(X) - 0.5) @ _LIFT_W), sigma=0.075, epsilon=3.5 * 0.075,
         ),
+        "lifting-drop": CalProblem(
+            "lifting-drop", _LIFT_LO, _LIFT_HI, lambda X: 5.0 + _DROP_GAP * _drop_p(X),
+            lambda X: np.sqrt(_DROP_BASE**2 + _DROP_GAP**2 * _drop_p(X) * (1.0 - _drop_p(X))),
+            sigma=0.075, epsilon=3.5 * 0.075, sample=_drop_sample,
+        ),
     }
 
 
@@ -154,6 +177,8 @@ def _variants() -> dict[str, Callable[[CalProblem, int], CriticConfig]]:
 
     return {
         "default": cfg(),
+        "previous": cfg(small_n_prior=False, clip_mean=False),
+        "no-clip": cfg(clip_mean=False),
         "vhgp-g": cfg(noise_model="vhgp"),
         "cold8": cfg(cold_iter=8),
         "cold30": cfg(cold_iter=30),

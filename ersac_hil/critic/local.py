@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import CriticInputError
-from .noise import LogLinearNoise, fit_log_linear
+from .noise import LogLinearNoise, fit_log_linear, pseudo_count
 from .vhgp import VHGP, VHGPHyperparameters, VHGPParams, VHGPPrediction, VHGPPredictionGradient
 
 MIN_FIT_POINTS = 3
@@ -89,6 +89,19 @@ class CriticConfig:
     g_variance_max, g_lengthscale_min: the other ends of the g hyperparameter boxes (equal
     ends hold a hyperparameter fixed); measured alternatives, not used by default.
 
+    small_n_prior: below 2 (d + 1) points the log-linear noise level is pooled with
+    2 (d + 1) - n pseudo-residuals at the sample variance of the neighbourhood's costs (a
+    conjugate prior; r~ at the neighbourhood's centre is then at least
+    sqrt((2 (d + 1) - n) / (2 (d + 1))) x their std).  d + 1 points fit any local linear
+    trend exactly, so below twice that the residuals of an ARD mean cannot tell noise from
+    structure: measured on 5 stored lifting runs (7-D, 10 neighbours at every update) r~
+    was 0.8-2 where the costs were 4.5 or 38 (std ~15), eta / r~ sat at its clip and single
+    updates moved theta by up to 25 sigma before the move guard (docs/learner.md).
+    clip_mean: J~ of a neighbourhood fit is clipped to the range of its costs (LocalFit).
+    small_n_prior acts on the log-linear noise model, clip_mean on every neighbourhood fit
+    (never on wide selection fits); False for both is the previous critic (bench/critic.py
+    measures both ways in the same run).
+
     cold_every: the learner's update fits are warm-started from the previous one; every
     `cold_every`-th also runs a cold fit (the two-stage recipe) and keeps whichever has the
     higher bound.  A warm chain can sit on a plateau forever: with the noise R -> 0 the
@@ -110,6 +123,8 @@ class CriticConfig:
     g_lengthscale_min: float | None = None
     noise_model: str = "loglinear"
     noise_slope_prior: float = 10.0
+    small_n_prior: bool = True
+    clip_mean: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.epsilon) and self.epsilon > 0):
@@ -128,6 +143,8 @@ class CriticConfig:
             raise CriticInputError(f"noise_model must be one of {NOISE_MODELS}, got {self.noise_model!r}")
         if not (math.isfinite(self.noise_slope_prior) and self.noise_slope_prior > 0):
             raise CriticInputError("noise_slope_prior must be finite and > 0")
+        if not (isinstance(self.small_n_prior, bool) and isinstance(self.clip_mean, bool)):
+            raise CriticInputError("small_n_prior and clip_mean must be booleans")
         if self.cold_every < 0:
             raise CriticInputError("cold_every must be >= 0 (0: never)")
         if self.cold_iter < 0 or self.warm_iter < 0 or self.cache_size < 1:
@@ -159,6 +176,8 @@ class CriticConfig:
             "g_lengthscale_min": self.g_lengthscale_min,
             "noise_model": self.noise_model,
             "noise_slope_prior": self.noise_slope_prior,
+            "small_n_prior": self.small_n_prior,
+            "clip_mean": self.clip_mean,
         }
 
     @classmethod
@@ -180,7 +199,8 @@ class CriticConfig:
 class CriticEstimate:
     """The critic at one point x (d,): J~, r~, F~ = J~ + kappa r~ and their gradients (d,).
 
-    J_var is the posterior variance of J~ (uncertainty about the mean, not the noise)."""
+    J_var is the posterior variance of J~ (uncertainty about the mean, not the noise);
+    g_var the posterior variance of the log noise variance g (var r~ ~ r~^2 g_var / 4)."""
 
     x: np.ndarray
     J: float
@@ -188,6 +208,7 @@ class CriticEstimate:
     F: float
     kappa: float
     J_var: float
+    g_var: float
     grad_J: np.ndarray
     grad_r: np.ndarray
     grad_F: np.ndarray
@@ -197,29 +218,49 @@ class CriticEstimate:
 @dataclass(frozen=True, eq=False)
 class LocalFit:
     """A VHGP fitted to the observations `ids` (sorted store indices, (n,)); with `noise`, the
-    noise process g (r~ and its slope) comes from that log-linear model instead."""
+    noise process g (r~ and its slope) comes from that log-linear model instead, and J~ is
+    kept inside the range of the fitted costs (`clip_mean`, local fits): a posterior mean
+    beyond every observed cost of the neighbourhood is the ringing of a near-interpolating
+    fit between costs of two modes (measured on lifting: J~ -42.8 where every cost was 4-45),
+    not information (its gradient is 0 where it is clipped)."""
 
     ids: np.ndarray
     model: VHGP
     warm_started: bool = field(default=False)
     noise: LogLinearNoise | None = None
+    clip_mean: bool = False
+
+    def _clip(self, f_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(clipped mean, inside mask), (m,) each."""
+        if not self.clip_mean:
+            return f_mean, np.ones(f_mean.shape, dtype=bool)
+        y = self.model.y
+        lo, hi = float(np.min(y)), float(np.max(y))
+        return np.clip(f_mean, lo, hi), (f_mean >= lo) & (f_mean <= hi)
 
     def predict(self, Xs: np.ndarray) -> VHGPPrediction:
         pred = self.model.predict(Xs)
-        if self.noise is None:
+        if self.noise is None and not self.clip_mean:
             return pred
+        f_mean, _ = self._clip(pred.f_mean)
+        if self.noise is None:
+            return VHGPPrediction(f_mean, pred.f_var, pred.g_mean, pred.g_var)
         g_mean, g_var = self.noise.predict(np.atleast_2d(np.asarray(Xs, dtype=float)))
-        return VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var)
+        return VHGPPrediction(f_mean, pred.f_var, g_mean, g_var)
 
     def predict_with_gradient(self, Xs: np.ndarray) -> tuple[VHGPPrediction, VHGPPredictionGradient]:
         pred, grad = self.model.predict_with_gradient(Xs)
-        if self.noise is None:
+        if self.noise is None and not self.clip_mean:
             return pred, grad
-        Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
-        g_mean, g_var = self.noise.predict(Xa)
-        dg_mean, dg_var = self.noise.gradient(Xa)
-        return (VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var),
-                VHGPPredictionGradient(grad.f_mean, grad.f_var, dg_mean, dg_var))
+        f_mean, inside = self._clip(pred.f_mean)
+        df_mean = grad.f_mean * inside[:, None]
+        g_mean, g_var, dg_mean, dg_var = pred.g_mean, pred.g_var, grad.g_mean, grad.g_var
+        if self.noise is not None:
+            Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
+            g_mean, g_var = self.noise.predict(Xa)
+            dg_mean, dg_var = self.noise.gradient(Xa)
+        return (VHGPPrediction(f_mean, pred.f_var, g_mean, g_var),
+                VHGPPredictionGradient(df_mean, grad.f_var, dg_mean, dg_var))
 
     def estimate(self, x: np.ndarray, kappa: float = 0.0) -> CriticEstimate:
         """J~, r~, F~ and gradients at one point x (d,)."""
@@ -273,6 +314,7 @@ def _estimate(
         F=J + kappa * r,
         kappa=float(kappa),
         J_var=float(pred.f_var[i]),
+        g_var=float(pred.g_var[i]),
         grad_J=grad.f_mean[i].copy(),
         grad_r=grad_r,
         grad_F=grad.f_mean[i] + kappa * grad_r,
@@ -381,7 +423,8 @@ class LocalCritic:
         else:
             model.fit(X, y)
         self.n_fits += 1
-        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None)
+        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None,
+                       clip_mean=local and self.config.clip_mean)
         self._remember(key, fit)
         return fit
 
@@ -397,7 +440,15 @@ class LocalCritic:
         # to n = 5 (d + 1) points (measured: 10 points in 7-D with the full prior put r~ off
         # by a factor e^11 at the edge of the ball)
         support = min(1.0, max(n - (d + 1), 0) / (4.0 * (d + 1)))
-        return fit_log_linear(X, e, v, max(support, 1e-3) * self.config.noise_slope_prior / extent)
+        # below 2 (d + 1) points the residuals cannot separate noise from a mean that can
+        # explain any labelling (d + 1 points fit any local linear trend exactly): the level
+        # is pooled with 2 (d + 1) - n pseudo-residuals at the neighbourhood's cost variance
+        # (measured on the lifting runs: r~ 0.8 where the costs were 4.5 or 38, docs/learner.md)
+        y = np.asarray(model.y, dtype=float)
+        return fit_log_linear(
+            X, e, v, max(support, 1e-3) * self.config.noise_slope_prior / extent,
+            spread=float(np.var(y, ddof=1)), pseudo=pseudo_count(n, d) if self.config.small_n_prior else 0,
+        )
 
     def _new_model(self, d: int) -> VHGP:
         c = self.config
@@ -433,7 +484,7 @@ class LocalCritic:
         if y.shape != ids.shape:
             raise CriticInputError("fit record: y and ids differ in length")
         model = VHGP.from_params(self._data.points[ids], y, VHGPParams.from_dict(record["params"]))
-        fit = LocalFit(ids, model, noise=self._noise(model))
+        fit = LocalFit(ids, model, noise=self._noise(model), clip_mean=self.config.clip_mean)
         if np.array_equal(y, self._data.costs[ids]):
             self._remember(self._key(ids) + bytes([True]), fit)
         return fit

@@ -69,30 +69,48 @@ class LogLinearNoise:
         return self.coef[1:] * inside, 2.0 * (Z @ self.cov[:, 1:]) * inside * ~capped
 
 
-def fit_log_linear(X: np.ndarray, e: np.ndarray, v: np.ndarray, slope_prior_std: np.ndarray) -> LogLinearNoise:
+def pseudo_count(n: int, d: int) -> int:
+    """Pseudo-residuals of the small-sample noise prior for n residuals in d dimensions:
+    max(0, 2 (d + 1) - n) (see fit_log_linear)."""
+    return max(0, 2 * (d + 1) - int(n))
+
+
+def fit_log_linear(
+    X: np.ndarray, e: np.ndarray, v: np.ndarray, slope_prior_std: np.ndarray, spread: float = 0.0, pseudo: float = 0.0,
+) -> LogLinearNoise:
     """MAP and Laplace posterior of g = a + b'(x - c), c = mean of X.
 
     X (n, d) inputs, e (n,) residuals, v (n,) >= 0 known extra variance of each residual,
-    slope_prior_std (d,) prior std of b.  Raises FitError if no finite optimum is found."""
+    slope_prior_std (d,) prior std of b.  spread, pseudo: a small-sample prior on the level,
+    `pseudo` residuals of variance `spread` at the centre c (the conjugate scaled-inverse-chi^2
+    prior on exp(a) with `pseudo` degrees of freedom); they only inform a, and at the optimum
+    exp(g_mean(c)) = exp(a) >= pseudo spread / (pseudo + n) whatever the residuals (each real
+    residual's term in d nll / da is at most 1/2, and a's own prior is centred on the pooled
+    level, which is above that bound).  Raises FitError if no finite optimum is found."""
     n, d = X.shape
     c = X.mean(0)
     U = X - c
     prec = 1.0 / slope_prior_std**2
     e2 = e * e
-    a0 = math.log(max(float(np.mean(e2)), 1e-300))
+    m0 = float(pseudo) if spread > 0 else 0.0
+    S = float(spread)
+    a0 = math.log(max((float(np.sum(e2)) + m0 * S) / (n + m0), 1e-300))
     prec_a = 1.0 / 9.0
 
     def nll(p: np.ndarray) -> tuple[float, np.ndarray]:
         with np.errstate(over="ignore"):
             s = np.exp(p[0] + U @ p[1:])
+            prior = m0 * S * math.exp(-p[0]) if m0 > 0 else 0.0
         tot = s + v
-        if not np.all(np.isfinite(tot)) or np.any(tot <= 0):
+        if not np.all(np.isfinite(tot)) or np.any(tot <= 0) or not math.isfinite(prior):
             return 1e300, np.zeros_like(p)
         val = 0.5 * float(np.sum(np.log(tot) + e2 / tot) + np.sum(prec * p[1:] ** 2) + prec_a * (p[0] - a0) ** 2)
+        val += 0.5 * (m0 * p[0] + prior)
         w = 0.5 * (s / tot) * (1.0 - e2 / tot)
-        return val, np.concatenate([[w.sum() + prec_a * (p[0] - a0)], U.T @ w + prec * p[1:]])
+        da = w.sum() + prec_a * (p[0] - a0) + 0.5 * (m0 - prior)
+        return val, np.concatenate([[da], U.T @ w + prec * p[1:]])
 
-    level = float(np.mean(np.maximum(e2 - v, 0.0)))
+    level = float(np.sum(np.maximum(e2 - v, 0.0)) + m0 * S) / (n + m0)
     level = max(level, 1e-3 * float(np.mean(e2)) + 1e-300)
     p0 = np.concatenate([[math.log(level)], np.zeros(d)])
     res = minimize(nll, p0, jac=True, method="L-BFGS-B", options={"maxiter": 200})
@@ -104,7 +122,7 @@ def fit_log_linear(X: np.ndarray, e: np.ndarray, v: np.ndarray, slope_prior_std:
     Z = np.column_stack([np.ones(n), U])
     H = 0.5 * (Z * (w * w)[:, None]).T @ Z
     H[1:, 1:] += np.diag(prec)
-    H[0, 0] += prec_a
+    H[0, 0] += prec_a + 0.5 * m0
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError as exc:  # pragma: no cover - H is positive definite

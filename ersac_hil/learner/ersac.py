@@ -502,8 +502,7 @@ class ERSAC:
         # moves below a sigma are left to the gradient steps; confident: sd(F~) from the
         # posterior of J~ and of g (var r~ ~ r~^2 var(g) / 4), measured in docs/learner.md
         travels = float(np.max(np.abs(sel.theta - theta) / self._sigma)) >= GREEDY_MIN_MOVE
-        g_var = float(fit.predict(sel.theta[None, :]).g_var[0])
-        sd = math.sqrt(max(there.J_var, 0.0) + kappa**2 * there.r**2 * g_var / 4.0)
+        sd = math.sqrt(max(there.J_var, 0.0) + kappa**2 * there.r**2 * there.g_var / 4.0)
         if travels and there.F + GREEDY_Z * sd < here.F:
             return sel.theta.copy(), True
         return theta, False

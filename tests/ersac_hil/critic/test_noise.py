@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.critic import VHGP
-from ersac_hil.critic.noise import fit_log_linear
+from ersac_hil.critic.noise import fit_log_linear, pseudo_count
 
 
 def test_recovers_a_log_linear_noise() -> None:
@@ -66,3 +66,21 @@ def test_vhgp_leave_one_out_matches_refitting_without_the_point() -> None:
         var = Kf[i, i] - k @ np.linalg.solve(K, k)
         assert e[i] == pytest.approx(std.scale * (ys[i] - mean), rel=1e-6)
         assert v[i] == pytest.approx(std.scale**2 * (var + 1e-8), rel=1e-5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), d=st.integers(1, 7), data=st.data())
+def test_the_small_sample_prior_bounds_the_level_from_below(seed: int, d: int, data: st.DataObject) -> None:
+    """With m0 pseudo-residuals of variance S, exp(g(c)) >= m0 S / (m0 + n) at the centre
+    c, whatever the residuals (fit_log_linear's doc)."""
+    n = data.draw(st.integers(3, 2 * (d + 1) - 1))
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0, 1, (n, d))
+    e = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 2)
+    S = 10.0 ** rng.uniform(-2, 4)
+    m0 = pseudo_count(n, d)
+    assert m0 == 2 * (d + 1) - n > 0
+    m = fit_log_linear(X, e, rng.uniform(0, 0.1, n), np.full(d, 3.0), spread=S, pseudo=m0)
+    g_c, _ = m.predict(X.mean(0)[None])
+    assert np.exp(g_c[0]) >= (1 - 1e-6) * m0 * S / (m0 + n)
+    assert pseudo_count(2 * (d + 1), d) == 0  # none from 2 (d + 1) points on
