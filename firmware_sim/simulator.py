@@ -310,6 +310,11 @@ class Simulator:
         d, idx = rig.physics.data, rig.physics.axes
         return d.qpos[idx.qpos], d.qvel[idx.dof], self._current, self._voltage
 
+    def axis_flags(self) -> np.ndarray:
+        """The boards' state flags of every axis, shape (8, 7) bool: rows in ``AxisStatus``
+        field order, columns ``AXES`` (what :meth:`MotorController.board_status` ORs per board)."""
+        return self._require().firmware.flags()
+
     def axes(self) -> dict[str, AxisState]:
         """All seven axes, in ``AXES`` order."""
         return {name: self.axis(name) for name in AXES}
@@ -322,6 +327,11 @@ class Simulator:
     def events(self) -> tuple[FailureEvent, ...]:
         """Failures of the last step (same as its return value)."""
         return self._events
+
+    @property
+    def fallen(self) -> bool:
+        """The fall detector has latched (``status.fallen``, without building the status)."""
+        return self._require().falls.fallen
 
     @property
     def status(self) -> Status:

@@ -77,7 +77,6 @@ class MotorController:
         self.name = name
         self.axes = BOARDS[name]
         self._idx = np.array([AXES.index(a) for a in self.axes])
-        self._axis_numbers = [AXES.index(a) for a in self.axes]
         self.bind(firmware)
 
     def bind(self, firmware: Firmware) -> None:
@@ -131,10 +130,7 @@ class MotorController:
     # ---- status ---------------------------------------------------------------------------
     def board_status(self) -> AxisStatus:
         """Each status bit OR-ed over the board's axes (what the status word reports)."""
-        fw, idx = self._fw, self._axis_numbers
-        return AxisStatus(*[any([bool(flags[i]) for i in idx]) for flags in (
-            fw.enabled, fw.safe, fw.over_current, fw.current_limiting, fw.position_limited,
-            fw.spline_active, fw.spline_done, fw.disconnected)])
+        return AxisStatus(*self._fw.flags()[:, self._idx].any(axis=1).tolist())
 
     def status(self, axis: str) -> AxisStatus:
         i = self._axis(axis)

@@ -42,6 +42,9 @@ DEFAULT_VELOCITY_LIMIT = 10.0
 """rad/s, reference velocity limit at power-on."""
 DEFAULT_OVERCURRENT_TIME = 0.1
 """s of continuous current limiting before the over-current fault latches."""
+FLAGS = ("enabled", "safe", "over_current", "current_limiting", "position_limited", "spline_active",
+         "spline_done", "disconnected")
+"""The per-axis state flags the boards report (the fields of ``AxisStatus``, in its order)."""
 
 
 @dataclass(eq=False)  # identity: two running splines never compare their arrays
@@ -81,6 +84,7 @@ class Firmware:
         self.mech_min = np.array(lo)
         self.mech_max = np.array(hi)
         self.tick = 0
+        self._flags = np.zeros((len(FLAGS), 7), dtype=bool)
         self.reset()
 
     # ---- episode --------------------------------------------------------------------------
@@ -99,21 +103,23 @@ class Firmware:
         self.pos_max = self.mech_max.copy()
         self.vel_limit = np.full(7, DEFAULT_VELOCITY_LIMIT)
         self.overcurrent_time = np.full(7, DEFAULT_OVERCURRENT_TIME)
-        self.enabled = np.ones(7, dtype=bool)
-        self.safe = np.zeros(7, dtype=bool)
-        self.disconnected = np.zeros(7, dtype=bool)
+        # the flags are rows of one array (flags()), every update in place
+        self._flags[:] = False
+        (self.enabled, self.safe, self.over_current, self.current_limiting, self.position_limited,
+         self.spline_active, self.spline_done, self.disconnected) = self._flags
+        self.enabled[:] = True
         self.wheels_free = False
-        self.over_current = np.zeros(7, dtype=bool)
-        self.current_limiting = np.zeros(7, dtype=bool)
-        self.position_limited = np.zeros(7, dtype=bool)
-        self.spline_active = np.zeros(7, dtype=bool)
-        self.spline_done = np.zeros(7, dtype=bool)
         self._sat_count = np.zeros(7, dtype=np.int64)
         self._counting = False
         self._sat_ticks = np.ones(7, dtype=np.int64)
         self._sat_threshold = np.zeros(7)
         self._splines: list[_RunningSpline] = []
         self.push()
+
+    def flags(self) -> np.ndarray:
+        """Every flag of ``FLAGS`` of every axis, shape (8, 7) bool (rows ``FLAGS``, columns
+        ``AXES``): the status of all boards in one array (the telemetry hot path)."""
+        return self._flags.copy()
 
     @property
     def active(self) -> np.ndarray:
@@ -256,7 +262,7 @@ class Firmware:
         over-current fault latched in this substep."""
         self.tick += 1
         force = np.abs(self.physics.data.actuator_force[self._act_view], out=self._abs_force)
-        limiting = self.current_limiting = force >= self._sat_threshold
+        limiting = np.greater_equal(force, self._sat_threshold, out=self.current_limiting)
         count = self._sat_count
         if not limiting.any():
             if self._counting:

@@ -16,9 +16,11 @@ applications short and thread-safe.
 from __future__ import annotations
 
 import logging
+import operator
 import struct
 import threading
 import time
+from collections.abc import Callable
 
 import canopen
 from canopen.nmt import NMT_COMMANDS, NmtSlave
@@ -36,6 +38,12 @@ log = logging.getLogger(__name__)
 Key = tuple[int, int]
 WATCHDOG_TICK_S = 0.02
 """Heartbeat production and consumer check resolution (loss detected within 20 ms)."""
+
+
+def _getter(keys: tuple[Key, ...]) -> Callable[[dict[Key, int]], tuple[int, ...]]:
+    """The values of ``keys`` from a dict as a tuple (``operator.itemgetter``, always a tuple)."""
+    get = operator.itemgetter(*keys)
+    return get if len(keys) > 1 else (lambda values: (get(values),))
 
 
 class NodeApplication:
@@ -136,7 +144,7 @@ class SlaveNode(canopen.LocalNode):
         self._agent_last_hb: float | None = None
         self._hb_lost = False
         self.sync_count = 0
-        self._layouts: list[tuple[int, int, struct.Struct, tuple[Key, ...]]] = []
+        self._layouts: list[tuple[int, int, struct.Struct, tuple[Key, ...], Callable[[dict], tuple]]] = []
         self._rpdo_handlers: list[tuple[int, object]] = []
         self.app.attach(self)
 
@@ -153,8 +161,8 @@ class SlaveNode(canopen.LocalNode):
                 handler = self._rpdo_handler(specs[("rpdo", number)])
                 network.subscribe(pdo_map.cob_id, handler)
                 self._rpdo_handlers.append((pdo_map.cob_id, handler))
-        self._layouts = [(m.cob_id, m.trans_type, pdo_struct(specs[("tpdo", n)]), specs[("tpdo", n)].keys)
-                         for n, m in self.tpdo.map.items()
+        self._layouts = [(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, _getter(spec.keys))
+                         for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
                          if m.enabled and 1 <= (m.trans_type or 0) <= 240]
         network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
         if self.own_sync:
@@ -212,6 +220,12 @@ class SlaveNode(canopen.LocalNode):
         """Telemetry/application value of an object (what SDO uploads and TPDOs carry)."""
         self._values[(index, subindex)] = raw
 
+    @property
+    def values(self) -> dict[Key, int]:
+        """The application values by (index, sub-index), live (``set_value`` in bulk: an
+        application's ``sample`` fills it while the node's lock is held)."""
+        return self._values
+
     def received(self, index: int, subindex: int = 0) -> int | None:
         """The application value of an object if one was set or received, else ``None``."""
         return self._values.get((index, subindex))
@@ -261,21 +275,26 @@ class SlaveNode(canopen.LocalNode):
         """Sample the application and send every synchronous TPDO (operational only); with
         ``out``, append ``(COB-ID, data)`` to it instead (the caller sends them as a burst).
         A node taken off the bus (``close``) sends nothing."""
-        if not self.operational or not self.has_network():
+        if self.nmt._state != OPERATIONAL or not self.has_network():
             return
         self.sync_count += 1
         count = self.sync_count
-        send = self.network.send_message if out is None else (lambda cob_id, data: out.append((cob_id, data)))
+        due = [layout for layout in self._layouts if count % layout[1] == 0]
+        if not due:
+            return
+        frames: list[tuple[int, bytes]] = [] if out is None else out
         with self._lock:
             self.app.sample()
             values = self._values
-            for cob_id, every, layout, keys in self._layouts:
-                if count % every == 0:
-                    try:
-                        data = layout.pack(*[values[k] for k in keys])
-                    except KeyError:  # an object the application never set: stored data / EDS default
-                        data = layout.pack(*[int(self.value(*k)) for k in keys])
-                    send(cob_id, data)
+            for cob_id, _, layout, keys, values_of in due:
+                try:
+                    data = layout.pack(*values_of(values))
+                except KeyError:  # an object the application never set: stored data / EDS default
+                    data = layout.pack(*[int(self.value(*k)) for k in keys])
+                frames.append((cob_id, data))
+        if out is None:
+            for cob_id, data in frames:
+                self.network.send_message(cob_id, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         self.apply_commands()

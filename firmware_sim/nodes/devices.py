@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import math
 import threading
+from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from firmware_sim.controllers import ConfigRangeError, ConfigStateError, JointController
@@ -28,17 +30,63 @@ _ACTUAL_VALUES = frozenset({Index.POSITION, Index.VELOCITY, Index.CURRENT, Index
                             Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
                             Index.ACCELERATION_Z})
 
-_STATUS_BITS = ((Status.OPERATION_ENABLED, "enabled"), (Status.SAFE_STATE, "safe_state"),
-                (Status.OVER_CURRENT, "over_current"), (Status.CURRENT_LIMITING, "current_limiting"),
-                (Status.POSITION_LIMIT, "position_limit"), (Status.SPLINE_ACTIVE, "spline_active"),
-                (Status.SPLINE_DONE, "spline_done"), (Status.CABLE_BROKEN, "disconnected"))
+_STATUS_BITS = (Status.OPERATION_ENABLED, Status.SAFE_STATE, Status.OVER_CURRENT, Status.CURRENT_LIMITING,
+                Status.POSITION_LIMIT, Status.SPLINE_ACTIVE, Status.SPLINE_DONE, Status.CABLE_BROKEN)
+"""The status-word bit of each board flag, in ``AxisStatus`` field order (``Simulator.axis_flags``)."""
+_WORD_OF = np.array([sum(int(bit) for k, bit in enumerate(_STATUS_BITS) if packed >> k & 1)
+                     for packed in range(1 << len(_STATUS_BITS))], dtype=np.int64)
+"""Status-word bits of an axis by its flags packed into a byte (bit k = flag k)."""
+_SAFE_FAULT = int(Status.SAFE_STATE | Status.FAULT)
+_FAULTS = int(Status.OVER_CURRENT | Status.CABLE_BROKEN)
+_FAULT, _ENABLED, _FALLEN = int(Status.FAULT), int(Status.OPERATION_ENABLED), int(Status.FALLEN)
 _AXIS_INDEXES = (Index.POSITION, Index.VELOCITY, Index.CURRENT, Index.VOLTAGE)
+_AXIS_SCALES = tuple(tuple(scale if index != Index.POSITION else (o.WHEEL_POSITION if a < 2 else o.POSITION)
+                           for a in range(len(AXES)))
+                     for index, scale in zip(_AXIS_INDEXES, (None, o.VELOCITY, o.CURRENT, o.VOLTAGE)))
+"""Scale of each axis telemetry object, shape (4, 7): rows ``_AXIS_INDEXES``, columns ``AXES``
+(the wheels' position is a 32-bit count)."""
+_FACTOR = np.array([[s.factor for s in row] for row in _AXIS_SCALES])
+_RAW_MIN = np.array([[s.raw_min for s in row] for row in _AXIS_SCALES], dtype=float)
+_RAW_MAX = np.array([[s.raw_max for s in row] for row in _AXIS_SCALES], dtype=float)
 
 SCENARIO_NAMES = {o.Scenario.IDLE: "idle", o.Scenario.BRACING: "bracing", o.Scenario.LIFTING: "lifting"}
 
 
 def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
     return missing if math.isnan(value) else scale.to_raw(value)
+
+
+@dataclass(frozen=True)
+class AxisCounts:
+    """Raw telemetry of every axis at one instant, what the boards' TPDOs carry.
+
+    Attributes:
+        counts: position, velocity, current and voltage counts (``Scale.to_raw`` of each
+            value, computed for all axes at once), 4 lists of 7 ints in ``AXES`` order.
+        words: status-word bits of each axis's board flags, 7 ints (a board ORs its axes').
+    """
+    counts: tuple[list[int], ...]
+    words: list[int]
+
+    @classmethod
+    def sample(cls, sim: Simulator) -> "AxisCounts":
+        """From the simulator's present state. ``ValueError`` on a NaN (as ``Scale.to_raw``)."""
+        packed = np.packbits(sim.axis_flags(), axis=0, bitorder="little")[0]
+        return cls(axis_counts(np.array(sim.axis_arrays())), _WORD_OF[packed].tolist())
+
+
+def axis_counts(values: np.ndarray) -> tuple[list[int], ...]:
+    """``Scale.to_raw`` of every axis value at once: ``values`` shape (4, 7), rows
+    ``_AXIS_INDEXES``, columns ``AXES``, SI units (overwritten). Bit for bit what ``to_raw``
+    gives each value, ``ValueError`` on a NaN like it."""
+    np.divide(values, _FACTOR, out=values)                  # the same division as to_raw
+    if math.isnan(values.min()):                            # min propagates a NaN
+        raise ValueError("cannot encode NaN")
+    # round half to even like round(); saturation like to_raw (>= max -> max, <= min -> min)
+    np.rint(values, out=values)
+    np.maximum(values, _RAW_MIN, out=values)
+    np.minimum(values, _RAW_MAX, out=values)
+    return tuple(values.astype(np.int64).tolist())
 
 
 class Host(Protocol):
@@ -52,6 +100,9 @@ class Host(Protocol):
     def reset(self, scenario: str, seed: int) -> None:
         """Start an episode of ``scenario``: physics and every node back to their defaults."""
 
+    def axis_counts(self) -> AxisCounts:
+        """The raw axis telemetry of the present state (computed once per SYNC for all nodes)."""
+
 
 class DeviceApp(NodeApplication):
     """Common behaviour: enable with NMT OPERATIONAL + control word ENABLE, safe state on
@@ -60,6 +111,8 @@ class DeviceApp(NodeApplication):
     def __init__(self, host: Host, device: Device) -> None:
         self.host, self.device = host, device
         self._axis_idx = [AXES.index(j) for j in device.joints]
+        self._axis_keys = tuple((index, sub) for index in _AXIS_INDEXES
+                                for sub in range(1, len(device.joints) + 1))
         self.control = Control(0)
         self.safe = False
         self.operational = False
@@ -101,31 +154,29 @@ class DeviceApp(NodeApplication):
         self._update_enable()
 
     def status(self) -> Status:
-        s = Status(0)
-        if self.safe:
-            s |= Status.SAFE_STATE | Status.FAULT
-        board = self.board
-        if board is None:
-            return s | (Status.OPERATION_ENABLED if self.operational and not self.safe else Status(0))
-        bits = board.board_status()
-        for flag, name in _STATUS_BITS:
-            if getattr(bits, name):
-                s |= flag
-        if s & (Status.OVER_CURRENT | Status.CABLE_BROKEN):
-            s |= Status.FAULT
-        return s
+        return Status(self.status_word(self.host.axis_counts() if self.device.joints else None))
+
+    def status_word(self, axes: AxisCounts | None) -> int:
+        """The status word: safe state and fault, else the board's flags OR-ed over its axes
+        (``axes``; devices without axes report operation enabled while operational)."""
+        s = _SAFE_FAULT if self.safe else 0
+        if not self._axis_idx:
+            return s | (_ENABLED if self.operational and not self.safe else 0)
+        words = axes.words
+        for i in self._axis_idx:
+            s |= words[i]
+        return s | _FAULT if s & _FAULTS else s
 
     def sample(self) -> None:
-        self.node.set_value(Index.STATUS, 0, int(self.status()))
-
-    def _sample_axes(self, position_scale: o.Scale) -> None:
-        arrays = self.host.sim.axis_arrays()
+        """Status word and, for a board, the counts of its axes into the node's values."""
+        if not self._axis_idx:
+            self.node.set_value(Index.STATUS, 0, self.status_word(None))
+            return
+        axes = self.host.axis_counts()
+        values = self.node.values
+        values[(Index.STATUS, 0)] = self.status_word(axes)
         idx = self._axis_idx
-        set_value = self.node.set_value
-        for index, scale, values in zip(_AXIS_INDEXES, (position_scale, o.VELOCITY, o.CURRENT, o.VOLTAGE),
-                                        arrays):
-            for sub, value in enumerate(values[idx].tolist(), start=1):
-                set_value(index, sub, scale.to_raw(value))
+        values.update(zip(self._axis_keys, [row[i] for row in axes.counts for i in idx]))
 
     def on_config(self, key: Key, value) -> None:
         try:
@@ -163,9 +214,6 @@ class WheelsApp(DeviceApp):
                            for s in (1, 2))
             self.host.sim.set_wheel_torque(left, right)
 
-    def sample(self) -> None:
-        super().sample()
-        self._sample_axes(o.WHEEL_POSITION)
 
 
 class JointApp(DeviceApp):
@@ -197,10 +245,6 @@ class JointApp(DeviceApp):
                 self.board.start_spline()
             except ConfigStateError:
                 pass  # SPLINE_ACTIVE never rises in the status word; the agent checks it
-
-    def sample(self) -> None:
-        super().sample()
-        self._sample_axes(o.POSITION)
 
     def configure(self, key: Key, value) -> None:
         index, sub = key
@@ -250,18 +294,17 @@ class JointApp(DeviceApp):
 
 
 class ImuApp(DeviceApp):
-    def status(self) -> Status:
-        return super().status() | (Status.FALLEN if self.host.sim.status.fallen else Status(0))
+    def status_word(self, axes: AxisCounts | None) -> int:
+        return super().status_word(axes) | (_FALLEN if self.host.sim.fallen else 0)
 
     def sample(self) -> None:
         imu = self.host.sim.imu()
-        s = self.status()
-        values = {Index.PITCH: o.PITCH.to_raw(imu.pitch), Index.PITCH_RATE: o.PITCH_RATE.to_raw(imu.pitch_rate),
-                  Index.PITCH_ACCELERATION: o.PITCH_ACCELERATION.to_raw(imu.pitch_acc),
-                  Index.ACCELERATION_X: o.ACCELERATION.to_raw(imu.acc_x),
-                  Index.ACCELERATION_Z: o.ACCELERATION.to_raw(imu.acc_z), Index.STATUS: int(s)}
-        for index, raw in values.items():
-            self.node.set_value(index, 0, raw)
+        self.node.values.update((
+            ((Index.PITCH, 0), o.PITCH.to_raw(imu.pitch)), ((Index.PITCH_RATE, 0), o.PITCH_RATE.to_raw(imu.pitch_rate)),
+            ((Index.PITCH_ACCELERATION, 0), o.PITCH_ACCELERATION.to_raw(imu.pitch_acc)),
+            ((Index.ACCELERATION_X, 0), o.ACCELERATION.to_raw(imu.acc_x)),
+            ((Index.ACCELERATION_Z, 0), o.ACCELERATION.to_raw(imu.acc_z)),
+            ((Index.STATUS, 0), self.status_word(None))))
 
 
 class TestBenchApp(DeviceApp):

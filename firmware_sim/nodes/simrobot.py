@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 
 from firmware_sim.nodes.base import SlaveNode
-from firmware_sim.nodes.devices import APPS
+from firmware_sim.nodes.devices import APPS, AxisCounts
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, Device
@@ -59,6 +59,7 @@ class SimulatedRobot:
         for node in self.nodes.values():
             node.connect(self.network)
         self.network.subscribe(cobid.SYNC, self._on_sync)
+        self._counts: AxisCounts | None = None
         self._stop = threading.Event()
         self._physics: threading.Thread | None = None
         if realtime:
@@ -92,9 +93,19 @@ class SimulatedRobot:
             if not self.realtime:
                 self._step()
             frames: list[tuple[int, bytes]] = []
-            for node in self.nodes.values():
-                node.transmit_tpdos(frames)
+            self._counts = AxisCounts.sample(self.sim)  # once for every board's TPDOs
+            try:
+                for node in self.nodes.values():
+                    node.transmit_tpdos(frames)
+            finally:
+                self._counts = None
             send_frames(self.network, frames)
+
+    def axis_counts(self) -> AxisCounts:
+        """The raw axis telemetry of the present state (the one of this SYNC while its TPDOs
+        are sampled)."""
+        counts = self._counts
+        return counts if counts is not None else AxisCounts.sample(self.sim)
 
     def _run_realtime(self) -> None:
         period = self.sim.control_period

@@ -4,10 +4,19 @@ ground-truth object reads as (decoded the same way), is the simulator's own SI s
 from __future__ import annotations
 
 import uuid
+from dataclasses import astuple
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from firmware_sim.controllers import BOARDS
+from firmware_sim.controllers.firmware import FLAGS
+from firmware_sim.nodes.devices import _AXIS_SCALES, _STATUS_BITS, AxisCounts, axis_counts
 from firmware_sim.nodes.simrobot import SimulatedRobot
+from firmware_sim.plant import AXES
+from firmware_sim.simulator import Simulator
 from helpers.can_nodes import Master
 from protocol.can.devices import ARM_LEFT, DEVICES, IMU, TESTBENCH, TORSO, WHEELS
 from protocol.can.busconfig import BusConfig
@@ -82,3 +91,47 @@ def test_configuration_in_si_reaches_the_firmware(rig):
     assert board.impedance(elbow)[1] == pytest.approx(0.789)
     assert board.current_limit(shoulder) == pytest.approx(4.321)
     assert sdo[Index.STIFFNESS][1].phys == pytest.approx(123.45)  # live read of what the board runs
+
+
+_ROW_SCALES = tuple(tuple(s for s in row) for row in _AXIS_SCALES)
+_SI = st.one_of(st.floats(-1e300, 1e300), st.sampled_from([np.inf, -np.inf]),   # saturation
+                st.integers(-(2 ** 33), 2 ** 33).map(lambda k: k * 0.5e-4),   # near and at half counts
+                st.floats(-10.0, 10.0))
+
+
+@settings(max_examples=300)
+@given(st.lists(_SI, min_size=28, max_size=28))
+def test_axis_counts_are_scale_to_raw_bit_for_bit(values):
+    # every axis at once (numpy) must give exactly what Scale.to_raw gives value by value
+    grid = np.array(values).reshape(4, 7)
+    expected = tuple([scale.to_raw(float(v)) for scale, v in zip(scales, row)]
+                     for scales, row in zip(_ROW_SCALES, grid))
+    assert axis_counts(grid.copy()) == expected
+
+
+def test_axis_counts_refuse_nan_like_to_raw():
+    grid = np.zeros((4, 7))
+    grid[2, 5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        axis_counts(grid)
+
+
+@settings(max_examples=100)
+@given(st.lists(st.booleans(), min_size=56, max_size=56))
+def test_axis_status_words_or_to_each_boards_status(flags):
+    # the per-axis words OR-ed over a board's axes are its board_status() bits as status word
+    sim = Simulator()
+    sim.reset("idle", 0)
+    fw = sim.controller("wheels")._fw  # the flags are rows of fw.flags(), written in place
+    for row, name in enumerate(FLAGS):
+        getattr(fw, name)[:] = flags[row * 7:(row + 1) * 7]
+    words = AxisCounts.sample(sim).words
+    for board, axes in BOARDS.items():
+        status = sim.controller(board).board_status()
+        expected = 0
+        for bit, value in zip(_STATUS_BITS, astuple(status)):
+            expected |= int(bit) if value else 0
+        got = 0
+        for axis in axes:
+            got |= words[AXES.index(axis)]
+        assert got == expected, board
