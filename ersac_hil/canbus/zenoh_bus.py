@@ -37,6 +37,14 @@ Bursts: :meth:`ZenohBus.send_many` puts several frames in one sample (a simulato
 after a SYNC, a master's RPDOs and the SYNC): one Zenoh message and one receive callback
 instead of one per frame; receivers see the frames one by one, in order, as if sent singly.
 
+Without ``can.Message`` on the cyclic path: :meth:`ZenohBus.send_data_frames` sends
+standard-id data frames given as ``(arbitration id, data)`` (the same wire bytes as
+``send_many`` of the equivalent messages), and a pushed listener with an ``on_frame(can_id,
+data, timestamp)`` method (canopen's ``Network.notify`` signature) gets the received data
+frames that way, without a ``can.Message`` built for it (data as a ``bytearray``, like a
+message's; error and remote frames are not given to ``on_frame``; with ``can_filters`` set
+every listener gets messages).
+
 Wire format of one sample: one or more frames back to back, each (little-endian)
 ``u32 arbitration_id``, ``u8 flags`` (bit 0 extended id, 1 remote, 2 error frame, 3 CAN FD,
 4 bit-rate switch, 5 error-state indicator), ``u8 dlc``, ``u8 length``, then ``length`` data
@@ -59,8 +67,8 @@ from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "decode_frame", "decode_frames",
-           "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "encode_data_frames", "decode_frame",
+           "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
 _HEADER = struct.Struct("<IBBB")
@@ -82,25 +90,44 @@ def decode_frames(payload: bytes, channel: str | None = None) -> list[can.Messag
     Raises:
         ValueError: a payload that does not split into whole frames.
     """
-    out, at, end, now = [], 0, len(payload), time.time()
+    now = time.time()
+    return [_message(frame, now, channel) for frame in _split(payload)]
+
+
+def _split(payload: bytes) -> list[tuple[int, int, int, bytearray]]:
+    """``(arbitration id, flags, dlc, data)`` of every frame of a sample (see
+    :func:`decode_frames`, which raises the same ``ValueError``)."""
+    out, at, end, header, size = [], 0, len(payload), _HEADER.unpack_from, _HEADER.size
+    whole = bytearray(payload)
     while at < end:
-        if end - at < _HEADER.size:
+        if end - at < size:
             raise ValueError(f"CAN-over-Zenoh sample: {end - at} bytes left, shorter than a frame header")
-        arbitration_id, flags, dlc, length = _HEADER.unpack_from(payload, at)
-        at += _HEADER.size
+        arbitration_id, flags, dlc, length = header(whole, at)
+        at += size
         if end - at < length:
             raise ValueError(f"CAN-over-Zenoh sample: frame 0x{arbitration_id:X} needs {length} data bytes, "
                              f"{end - at} left")
-        out.append(can.Message(timestamp=now, arbitration_id=arbitration_id,
-                               is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
-                               is_error_frame=bool(flags & _ERROR), is_fd=bool(flags & _FD),
-                               bitrate_switch=bool(flags & _BRS), error_state_indicator=bool(flags & _ESI),
-                               dlc=dlc, data=payload[at:at + length], channel=channel, is_rx=True,
-                               check=False))
+        out.append((arbitration_id, flags, dlc, whole[at:at + length]))
         at += length
     if not out:
         raise ValueError("CAN-over-Zenoh sample without a frame")
     return out
+
+
+def _message(frame: tuple[int, int, int, bytearray], timestamp: float, channel: str | None) -> can.Message:
+    arbitration_id, flags, dlc, data = frame
+    return can.Message(timestamp=timestamp, arbitration_id=arbitration_id,
+                       is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
+                       is_error_frame=bool(flags & _ERROR), is_fd=bool(flags & _FD),
+                       bitrate_switch=bool(flags & _BRS), error_state_indicator=bool(flags & _ESI),
+                       dlc=dlc, data=data, channel=channel, is_rx=True, check=False)
+
+
+def encode_data_frames(frames: Sequence[tuple[int, bytes]]) -> bytes:
+    """The wire form of standard-id data frames ``(arbitration id, data)`` sent as one
+    sample: what :func:`encode_frame` gives the equivalent ``can.Message`` objects."""
+    pack = _HEADER.pack
+    return b"".join([pack(arbitration_id, 0, len(data), len(data)) + data for arbitration_id, data in frames])
 
 
 def decode_frame(payload: bytes, channel: str | None = None) -> can.Message:
@@ -205,15 +232,20 @@ class ZenohBus(BusABC):
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
-            frames = decode_frames(sample.payload.to_bytes(), self._name)
+            frames = _split(sample.payload.to_bytes())
         except ValueError:
             return  # not frames: nothing a CAN node could receive
-        push = self._push
-        for msg in frames:
-            if push is None:
-                self._rx.put(msg)
-            elif self._matches_filters(msg):
-                push.deliver(msg)
+        now, push = time.time(), self._push
+        if push is None:
+            for frame in frames:
+                self._rx.put(_message(frame, now, self._name))
+        elif self._filters is None:
+            push.deliver_frames(frames, now)
+        else:
+            for frame in frames:
+                msg = _message(frame, now, self._name)
+                if self._matches_filters(msg):
+                    push.deliver(msg)
 
     def push_notifier(self, listeners: list) -> PushNotifier:  # noqa: ANN001
         """Deliver every received frame to ``listeners`` (``can.Listener`` or callables) on
@@ -232,6 +264,12 @@ class ZenohBus(BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._put(encode_frame(msg))
+
+    def send_data_frames(self, frames: Sequence[tuple[int, bytes]]) -> None:
+        """Send standard-id data frames ``(arbitration id, data)`` in this order as one burst,
+        without building ``can.Message`` objects (see the module doc)."""
+        if frames:
+            self._put(encode_data_frames(frames))
 
     def send_many(self, msgs: Sequence[can.Message]) -> None:
         """Send ``msgs`` in this order as one burst (one Zenoh sample, see the module doc)."""
@@ -277,11 +315,35 @@ class PushNotifier:
                 callback = getattr(listener, "on_message_received", listener)
                 callback(msg)
         except Exception as exc:  # noqa: BLE001 - kept for the owner, like can.Notifier
-            self.exception = exc
-            for listener in self.listeners:
-                on_error = getattr(listener, "on_error", None)
-                if on_error is not None:
-                    on_error(exc)
+            self._failed(exc)
+
+    def deliver_frames(self, frames: list[tuple[int, int, int, bytearray]], timestamp: float) -> None:
+        """The frames of one sample, in order: ``on_frame`` listeners get data frames as
+        ``(can_id, data, timestamp)``, the others a ``can.Message`` (one per frame, shared)."""
+        channel = self.bus._name
+        for frame in frames:
+            if self._stopped or self.exception is not None:
+                return
+            msg = None
+            try:
+                for listener in self.listeners:
+                    on_frame = getattr(listener, "on_frame", None)
+                    if on_frame is not None:
+                        if not frame[1] & (_ERROR | _REMOTE):
+                            on_frame(frame[0], frame[3], timestamp)
+                        continue
+                    if msg is None:
+                        msg = _message(frame, timestamp, channel)
+                    getattr(listener, "on_message_received", listener)(msg)
+            except Exception as exc:  # noqa: BLE001 - kept for the owner, like can.Notifier
+                self._failed(exc)
+
+    def _failed(self, exc: Exception) -> None:
+        self.exception = exc
+        for listener in self.listeners:
+            on_error = getattr(listener, "on_error", None)
+            if on_error is not None:
+                on_error(exc)
 
     def add_listener(self, listener) -> None:  # noqa: ANN001
         self.listeners.append(listener)

@@ -20,6 +20,7 @@ gets.
 from __future__ import annotations
 
 import ipaddress
+import logging
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -27,6 +28,8 @@ from urllib.parse import urlparse
 
 import can
 import canopen
+
+log = logging.getLogger(__name__)
 
 DEFAULT_BITRATE = 1_000_000
 
@@ -163,8 +166,21 @@ def open_network(config: BusConfig) -> canopen.Network:
     push = getattr(bus, "push_notifier", None)
     if push is None:
         return network.connect()
+    network.listeners[:] = [FrameListener(network)]
     network.notifier = push(network.listeners)
     return network
+
+
+class FrameListener(canopen.network.MessageListener):
+    """canopen's listener (frames to ``Network.notify``) that also takes a data frame as
+    ``on_frame(can_id, data, timestamp)``, so a bus that pushes frames that way (CAN over
+    Zenoh) builds no ``can.Message`` for it."""
+
+    def on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        try:
+            self.network.notify(can_id, data, timestamp)
+        except Exception as exc:  # like MessageListener: a callback's error does not stop the bus
+            log.error(str(exc))
 
 
 def send_frames(network: canopen.Network, frames: list[tuple[int, bytes]]) -> None:
@@ -172,6 +188,12 @@ def send_frames(network: canopen.Network, frames: list[tuple[int, bytes]]) -> No
     bus has ``send_many`` (CAN over Zenoh: one message for a SYNC's worth of PDOs), else one
     by one (``Network.send_message``)."""
     bus = network.bus
+    burst = getattr(bus, "send_data_frames", None)
+    if burst is not None:
+        with network.send_lock:
+            burst(frames)
+        network.check()
+        return
     many = getattr(bus, "send_many", None)
     if many is None:
         for cob_id, data in frames:

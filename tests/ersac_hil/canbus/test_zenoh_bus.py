@@ -20,7 +20,7 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, decode_frames, encode_frame
+from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, decode_frames, encode_data_frames, encode_frame
 
 TIMEOUT = 10.0
 
@@ -74,6 +74,12 @@ def test_a_burst_splits_back_into_its_frames(msgs):
     assert len(back) == len(msgs)
     assert all(b.equals(m, timestamp_delta=None, check_channel=False, check_direction=False)
                for b, m in zip(back, msgs))
+
+
+@given(st.lists(st.tuples(st.integers(0, 0x7FF), st.binary(max_size=8)), min_size=1, max_size=20))
+def test_data_frames_have_the_wire_bytes_of_the_equivalent_messages(frames_):
+    msgs = [can.Message(arbitration_id=i, data=d, is_extended_id=False) for i, d in frames_]
+    assert encode_data_frames(frames_) == b"".join(encode_frame(m) for m in msgs)
 
 
 def test_remote_frames_keep_their_dlc_without_data():
@@ -222,6 +228,35 @@ def test_pushed_frames_reach_listeners_in_order_until_stopped(pair):
     notifier.stop()
     a.send(can.Message(arbitration_id=0x300, data=b""))
     assert b.recv(TIMEOUT).arbitration_id == 0x300 and len(got) == 200  # queued for recv() again
+
+
+def test_frame_listeners_get_data_frames_without_messages_others_get_messages(pair):
+    """canopen's path (protocol.can.busconfig.FrameListener): on_frame(can_id, data, ts)."""
+    import threading
+    a, b = pair
+    raw: list[tuple[int, bytes]] = []
+    msgs: list[can.Message] = []
+    done = threading.Event()
+
+    class Raw:
+        def on_frame(self, can_id, data, timestamp):
+            assert isinstance(data, bytearray) and timestamp > 0
+            raw.append((can_id, bytes(data)))
+
+    def listener(msg: can.Message) -> None:
+        msgs.append(msg)
+        if len(msgs) == 15:
+            done.set()
+
+    b.push_notifier([Raw(), listener])
+    sent = [(0x180 + i, bytes([i] * (i % 9))) for i in range(13)]
+    a.send_data_frames(sent)
+    a.send_many([can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False),
+                 can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)])
+    assert done.wait(TIMEOUT)
+    assert raw == sent + [(0x80, b"")]  # no remote frame for a canopen network
+    assert [(m.arbitration_id, bytes(m.data)) for m in msgs] == sent + [(0x701, b""), (0x80, b"")]
+    assert msgs[13].is_remote_frame and all(m.is_rx and not m.is_extended_id for m in msgs)
 
 
 def _link(sender: can.BusABC, receiver: can.BusABC, arbitration_id: int) -> can.Message | None:
