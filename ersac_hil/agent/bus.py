@@ -38,7 +38,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeMissing,
                                     PdoTimeout, SdoTimeout)
-from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry
+from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry, TelemetryDecoder
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
@@ -100,6 +100,7 @@ class AgentBus:
         self._emcy: list[EmcyEvent] = []
         self._tpdo_device: dict[int, str] = {}
         self._tpdo_keys: dict[int, tuple[tuple[int, int], ...]] = {}
+        self._decoder: TelemetryDecoder | None = None
         self._rpdos: list[tuple[str, int, object, tuple[tuple[int, int], ...]]] = []
         self._pending: set[int] = set()
         self._frames: dict[int, tuple[int, ...]] = {}
@@ -135,6 +136,8 @@ class AgentBus:
             if dev in ACTUATED:
                 self._rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                                 for n, m in node.rpdo.map.items() if m.enabled]
+        self._decoder = TelemetryDecoder({cob_id: (self._tpdo_device[cob_id], self._tpdo_keys[cob_id])
+                                          for cob_id in self._tpdo_device})
         self._heartbeat = HeartbeatProducer(net).start()
         return self
 
@@ -198,11 +201,12 @@ class AgentBus:
 
     def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
         """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
-        ages = self.heartbeat_ages()
-        for dev in devices:
-            age = ages[_name(dev)]
-            if age is None or age > self.timing.heartbeat_timeout_s:
-                raise HeartbeatLost(_name(dev), age, self.timing.heartbeat_timeout_s)
+        now, timeout = time.monotonic(), self.timing.heartbeat_timeout_s
+        with self._cond:
+            seen = [(_name(dev), self._hb_seen.get(_name(dev))) for dev in devices]
+        for name, heard in seen:
+            if heard is None or now - heard > timeout:
+                raise HeartbeatLost(name, None if heard is None else now - heard, timeout)
 
     def wait_for_nodes(self, devices: Iterable[Device | str] = CYCLIC,
                        timeout_s: float = 2 * HEARTBEAT_PERIOD_MS / 1000 + 0.1) -> None:
@@ -332,9 +336,7 @@ class AgentBus:
                 self._cond.wait(remaining)
             missing = set(self._pending)
             self._pending.clear()
-            raw: dict[str, dict[tuple[int, int], int]] = {name: {} for name in self._tpdo_device.values()}
-            for cob_id, values in self._frames.items():
-                raw[self._tpdo_device[cob_id]].update(zip(self._tpdo_keys[cob_id], values))
+            frames = dict(self._frames)
         latency = time.perf_counter() - t0
         if missing:
             self._raise_if_bus_down()
@@ -342,7 +344,7 @@ class AgentBus:
             raise PdoTimeout(cycle, names, self.timing.deadline_s)
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
-        return Telemetry.decode(cycle, raw, latency)
+        return self._decoder.decode(cycle, frames, latency)
 
     def _pace(self) -> None:
         now = time.perf_counter()
