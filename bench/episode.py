@@ -17,6 +17,16 @@ it. Backends:
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
+
+Side by side with another checkout (an older main, its own venv or this one)::
+
+    python bench/episode.py --baseline ../old-main [--baseline-bus remote] [--rounds 3] [--only zenoh]
+
+runs the process backends of ``--only`` round by round, the other checkout's simulator and
+agent first, then this one's (``--baseline-bus remote``: the other side over the loopback hub,
+for a main without CAN over Zenoh), prints both rows per round with the load average, and
+checks that both gave the same cost terms and telemetry for every episode (same seed, same
+policy: bit-identical).
 """
 from __future__ import annotations
 
@@ -92,8 +102,10 @@ def _ready(proc: subprocess.Popen, marker: str) -> str:
             return said
 
 
-def processes(config: BusConfig | None, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
-    """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router)."""
+def processes(config: BusConfig | None, n: int, realtime: bool,
+              checkout: Path | None = None, python: str = sys.executable) -> dict[str, list[EpisodeResult]]:
+    """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router),
+    run by ``python`` from ``checkout`` (default: this one)."""
     extra = ["--realtime"] if realtime else []
     procs = []
     try:
@@ -101,13 +113,13 @@ def processes(config: BusConfig | None, n: int, realtime: bool) -> dict[str, lis
             if config is None:
                 config = BusConfig("zenoh", f"bench-{uuid.uuid4().hex[:6]}@{router.endpoint}")
             bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
-            sim = subprocess.Popen([sys.executable, "-m", "firmware_sim", *bus_args, *extra],
-                                   stdout=subprocess.PIPE, text=True)
+            sim = subprocess.Popen([python, "-m", "firmware_sim", *bus_args, *extra],
+                                   stdout=subprocess.PIPE, text=True, cwd=checkout)
             procs.append(sim)
             scheduling = [_ready(sim, "simulator: ")]
-            agent = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT,
+            agent = subprocess.Popen([python, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT,
                                       *bus_args, "--zenoh", router.endpoint, *extra],
-                                     stdout=subprocess.PIPE, text=True)
+                                     stdout=subprocess.PIPE, text=True, cwd=checkout)
             procs.append(agent)
             scheduling.append(_ready(agent, "agent ready"))
             if realtime:
@@ -137,21 +149,76 @@ def report(backend: str, results: dict[str, list[EpisodeResult]]) -> None:
               f"missed periods {missed}/{total:.0f}")
 
 
+def _measured(r: EpisodeResult) -> tuple:
+    """What an episode measured (not how fast): identical for the same seed and policy."""
+    timing = ("sync_latency_p50_ms", "sync_latency_p99_ms", "sync_latency_max_ms")
+    return (r.status, sorted(r.cost_terms.items()), r.total_cost, sorted(r.failures.items()),
+            sorted((k, v) for k, v in r.telemetry.items() if k not in timing))
+
+
+def _on(bus: str, run):  # noqa: ANN001, ANN202
+    """``run(config)`` on ``bus`` ("zenoh": ``None``, the router's channel; "remote": a hub)."""
+    if bus == "remote":
+        with LoopbackHub() as hub:
+            return run(hub.bus_config)
+    return run(None)
+
+
+def compare(args: argparse.Namespace) -> int:
+    """Rounds of the other checkout, then this one; rows per round; identical episodes?"""
+    other = args.baseline.resolve()
+    python = args.baseline_python or (str(other / ".venv/bin/python") if (other / ".venv/bin/python").exists()
+                                      else sys.executable)
+    here = Path(__file__).resolve().parents[1]
+    same = True
+    for rnd in range(1, args.rounds + 1):
+        base = _on(args.baseline_bus, lambda c: processes(c, args.episodes, args.realtime, other, python))
+        print(f"round {rnd}  load average {os.getloadavg()[0]:.2f}")
+        report(f"base-{args.baseline_bus}", base)
+        for backend in args.only or ("zenoh",):
+            if backend == "virtual":
+                continue
+            new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here))
+            report(backend, new)
+            for task in new:
+                for a, b in zip(base[task], new[task]):
+                    if _measured(a) != _measured(b):
+                        same = False
+                        print(f"  DIFFERENT {task} episode: {a.cost_terms} vs {b.cost_terms}")
+    print(f"load average {os.getloadavg()[0]:.2f}; baseline {other} ({python}); "
+          f"every episode identical to the baseline's: {'yes' if same else 'NO'}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3, help="episodes per task and backend")
     parser.add_argument("--realtime", action="store_true", help="real-time mode (agent and simulator)")
+    parser.add_argument("--only", action="append", choices=("virtual", "remote", "zenoh"),
+                        help="only these backends (repeatable; default all)")
+    parser.add_argument("--baseline", type=Path, help="another checkout to run side by side")
+    parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
+    parser.add_argument("--baseline-bus", choices=("zenoh", "remote"), default="zenoh")
+    parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
     args = parser.parse_args()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")
     print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {args.episodes} per task; "
           f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
-    report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
-                                 args.episodes, args.realtime))
-    with LoopbackHub() as hub:
-        report("remote", processes(hub.bus_config, args.episodes, args.realtime))
-    report("zenoh", processes(None, args.episodes, args.realtime))
+    if args.baseline is not None:
+        return compare(args)
+    only = args.only or ("virtual", "remote", "zenoh")
+    if "virtual" in only:
+        report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
+                                     args.episodes, args.realtime))
+    if "remote" in only:
+        with LoopbackHub() as hub:
+            report("remote", processes(hub.bus_config, args.episodes, args.realtime))
+    if "zenoh" in only:
+        report("zenoh", processes(None, args.episodes, args.realtime))
     print(f"load average {os.getloadavg()[0]:.2f}")
+    if args.only:
+        return 0
     status = vcan_status("vcan0")
     if status.available:
         report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime))

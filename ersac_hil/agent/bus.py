@@ -136,8 +136,7 @@ class AgentBus:
             if dev in ACTUATED:
                 self._rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                                 for n, m in node.rpdo.map.items() if m.enabled]
-        self._decoder = TelemetryDecoder({cob_id: (self._tpdo_device[cob_id], self._tpdo_keys[cob_id])
-                                          for cob_id in self._tpdo_device})
+        self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
         return self
 
@@ -344,6 +343,9 @@ class AgentBus:
             raise PdoTimeout(cycle, names, self.timing.deadline_s)
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
+        if self._decoder is None:
+            self._decoder = TelemetryDecoder({cob_id: (self._tpdo_device[cob_id], self._tpdo_keys[cob_id])
+                                              for cob_id in self._tpdo_device})
         return self._decoder.decode(cycle, frames, latency)
 
     def _pace(self) -> None:

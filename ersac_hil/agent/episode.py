@@ -49,6 +49,7 @@ OUTCOME_EMCY = {EmcyCode.CABLE_BROKEN: "hardware_damage", EmcyCode.OVER_CURRENT:
 """EMCY codes that are task outcomes (failure flags), not faults."""
 OUTCOME_STATUS = {Status.CABLE_BROKEN: "hardware_damage", Status.OVER_CURRENT: "over_current",
                   Status.FALLEN: "fallen", Status.BOTTLE_DROPPED: "bottle_dropped"}
+_OUTCOME_BITS = int(sum(OUTCOME_STATUS))
 
 
 @dataclass(frozen=True)
@@ -257,10 +258,13 @@ class EpisodeRunner:
 
     @staticmethod
     def _flags(episode: _Episode, tel: Telemetry) -> None:
-        status = tel.any_status
-        for bit, flag in OUTCOME_STATUS.items():
-            if status & bit:
-                episode.failures[flag] = True
+        status = 0
+        for word in tel.status:  # tel.any_status, without an enum per cycle
+            status |= word
+        if status & _OUTCOME_BITS:
+            for bit, flag in OUTCOME_STATUS.items():
+                if status & bit:
+                    episode.failures[flag] = True
 
     def _result(self, plan: Plan, episode: _Episode, wall0: float) -> EpisodeResult:
         request = plan.request

@@ -69,6 +69,8 @@ class Firmware:
         a0 = int(idx.actuator[0])
         contiguous = np.array_equal(idx.actuator, np.arange(a0, a0 + 7))
         self._act_view = slice(a0, a0 + 7) if contiguous else idx.actuator
+        # the seven actuator forces as a view into MuJoCo's data (read every substep)
+        self._force = physics.data.actuator_force[self._act_view] if contiguous else None
         self._abs_force = np.zeros(7)
         self._dof = idx.dof
         self._qpos = idx.qpos
@@ -261,7 +263,8 @@ class Firmware:
         """After a substep: current limiting and over-current timing. Returns the axes whose
         over-current fault latched in this substep."""
         self.tick += 1
-        force = np.abs(self.physics.data.actuator_force[self._act_view], out=self._abs_force)
+        force = self._force if self._force is not None else self.physics.data.actuator_force[self._act_view]
+        force = np.abs(force, out=self._abs_force)
         limiting = np.greater_equal(force, self._sat_threshold, out=self.current_limiting)
         count = self._sat_count
         if not limiting.any():
