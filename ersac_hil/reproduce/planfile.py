@@ -87,8 +87,9 @@ def _sizes(values: Mapping[str, Any]) -> Sizes:
     return Sizes(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
 
 
-def _names(names: Sequence[str]) -> str:
-    return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+def _names(names: Sequence[str], sep: str = ", ") -> str:
+    """The first three of ``names`` and how many more (a one-line message stays short)."""
+    return sep.join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
 
 
 def resolve(recorded: Mapping[str, Any] | None, experiments: Sequence[str], requested: Sizes,
@@ -122,7 +123,7 @@ def resolve(recorded: Mapping[str, Any] | None, experiments: Sequence[str], requ
     if explicit:
         clash = [f"{known[f][0]} has {f} {known[f][1]} (asked {values[f]})" for f in used if known[f][1] != values[f]]
         if clash:
-            raise PlanConflict(f"holds experiments made with other sizes: {'; '.join(clash)}; run without "
+            raise PlanConflict(f"holds experiments made with other sizes: {_names(clash, '; ')}; run without "
                                "--seeds/--quick to continue them with their sizes, or use another --out")
     else:
         values.update({f: known[f][1] for f in used})
@@ -133,8 +134,8 @@ def resolve(recorded: Mapping[str, Any] | None, experiments: Sequence[str], requ
     if stale:
         what = sorted({k for n in stale for k in mismatch(rec["runs"][n], dict(learning))})
         raise PlanConflict(f"holds learning runs made by other learner code ({_names(stale)}; changed: "
-                           f"{', '.join(what)}): remove their stores from runs/ to run them again with this "
-                           "code (the trials in trials.db are kept and reused), or use another --out")
+                           f"{', '.join(what)}): remove their runs/<run>.db* to run them again with "
+                           "this code (the trials in trials.db are kept and reused), or use another --out")
     record = {
         "experiments": {**rec["experiments"], **{e: {f: values[f] for f in FIELDS[e]} for e in experiments}},
         "model": dict(model),
