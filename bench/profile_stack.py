@@ -43,14 +43,15 @@ INTEREST = [
     ("agent: AgentBus.cycle", r"^AgentBus\.cycle \("),
     ("agent: episode loop", r"^EpisodeRunner\._loop \("),
     ("agent: LQR torque", r"^BalanceController\.torque \("),
-    ("agent: Telemetry.decode", r"^Telemetry\.decode \("),
-    ("agent: TPDO callback", r"^AgentBus\._on_tpdo \("),
+    ("sim: axis counts (all boards)", r"^AxisCounts\.sample \("),
+    ("agent: Telemetry.decode", r"^Telemetry(Decoder)?\.decode \("),
+    ("agent: TPDO callback", r"^AgentBus\._(on_tpdo|tpdo_handler\.<locals>\.on_frame) \("),
     ("agent: cost terms + result", r"^EpisodeRunner\._result \("),
     ("canopen: Network.notify (dispatch)", r"^Network\.notify \(canopen"),
     ("canopen: PDO decode/encode", r"^(PdoMap|PdoBase|PdoVariable|Variable)\.\w+ \(canopen"),
     ("python-can: Notifier thread", r"^Notifier\._rx_thread \("),
     ("python-can-remote (client/server)", r"\(can_remote/"),
-    ("zenoh CAN plugin", r"\(ersac_hil/canbus/zenoh_can"),
+    ("zenoh CAN plugin", r"\(ersac_hil/canbus/zenoh_bus"),
     ("learner: ERSAC.tell", r"^ERSAC\.tell \("),
 ]
 
@@ -156,10 +157,14 @@ def main() -> int:
             p.communicate(timeout=10)
     print(f"profile of lock-step bracing episodes over '{args.bus}', {args.seconds:g} s at {args.rate} Hz, "
           f"{episodes[0]} episodes; load average {os.getloadavg()[0]:.2f}; raw stacks in {out}")
+    cycles = episodes[0] * 400  # 2 s bracing episodes at 200 Hz (set-up included in the wall time)
     for name in procs:
         raw = out / f"{name}.txt"
         if raw.exists():
             print(f"\n[{name}]\n{analyse(raw)}")
+            held = sum(int(line.rpartition(" ")[2]) for line in raw.read_text().splitlines() if " " in line)
+            if cycles:
+                print(f"  GIL held about {1e6 * held / args.rate / cycles:.0f} us per cycle ({cycles} cycles)")
     return 0
 
 
