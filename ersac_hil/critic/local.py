@@ -95,12 +95,15 @@ class CriticConfig:
     sqrt((2 (d + 1) - n) / (2 (d + 1))) x their std).  d + 1 points fit any local linear
     trend exactly, so below twice that the residuals of an ARD mean cannot tell noise from
     structure: measured on 5 stored lifting runs (7-D, 10 neighbours at every update) r~
-    was 0.8-2 where the costs were 4.5 or 38 (std ~15), eta / r~ sat at its clip and single
-    updates moved theta by up to 25 sigma before the move guard (docs/learner.md).
-    clip_mean: J~ of a neighbourhood fit is clipped to the range of its costs (LocalFit).
-    small_n_prior acts on the log-linear noise model, clip_mean on every neighbourhood fit
-    (never on wide selection fits); False for both is the previous critic (bench/critic.py
-    measures both ways in the same run).
+    was 0.8-3 where the costs were 4.5 or 38 (std ~15), eta / r~ sat at its clip and single
+    updates moved theta by up to 35 sigma before the move guard (docs/learner.md).
+    clip_mean: the learner's TD baseline J~(theta) is clipped to the range of the costs of
+    the fit it comes from (ERSAC's update): theta is the centre of its own perturbations, so
+    a mean there beyond every cost around it is the ringing of a near-interpolating fit
+    between two cost modes (measured on lifting: J~ -42.8 where every cost was 4-45), not
+    information.  Predictions elsewhere are not clipped (a trend may leave the costs' range
+    legitimately away from the data: clipping every prediction cost Branin 1-5 points of
+    coverage in bench/critic.py).  False for both is the previous critic.
 
     cold_every: the learner's update fits are warm-started from the previous one; every
     `cold_every`-th also runs a cold fit (the two-stage recipe) and keeps whichever has the
@@ -218,49 +221,29 @@ class CriticEstimate:
 @dataclass(frozen=True, eq=False)
 class LocalFit:
     """A VHGP fitted to the observations `ids` (sorted store indices, (n,)); with `noise`, the
-    noise process g (r~ and its slope) comes from that log-linear model instead, and J~ is
-    kept inside the range of the fitted costs (`clip_mean`, local fits): a posterior mean
-    beyond every observed cost of the neighbourhood is the ringing of a near-interpolating
-    fit between costs of two modes (measured on lifting: J~ -42.8 where every cost was 4-45),
-    not information (its gradient is 0 where it is clipped)."""
+    noise process g (r~ and its slope) comes from that log-linear model instead."""
 
     ids: np.ndarray
     model: VHGP
     warm_started: bool = field(default=False)
     noise: LogLinearNoise | None = None
-    clip_mean: bool = False
-
-    def _clip(self, f_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(clipped mean, inside mask), (m,) each."""
-        if not self.clip_mean:
-            return f_mean, np.ones(f_mean.shape, dtype=bool)
-        y = self.model.y
-        lo, hi = float(np.min(y)), float(np.max(y))
-        return np.clip(f_mean, lo, hi), (f_mean >= lo) & (f_mean <= hi)
 
     def predict(self, Xs: np.ndarray) -> VHGPPrediction:
         pred = self.model.predict(Xs)
-        if self.noise is None and not self.clip_mean:
-            return pred
-        f_mean, _ = self._clip(pred.f_mean)
         if self.noise is None:
-            return VHGPPrediction(f_mean, pred.f_var, pred.g_mean, pred.g_var)
+            return pred
         g_mean, g_var = self.noise.predict(np.atleast_2d(np.asarray(Xs, dtype=float)))
-        return VHGPPrediction(f_mean, pred.f_var, g_mean, g_var)
+        return VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var)
 
     def predict_with_gradient(self, Xs: np.ndarray) -> tuple[VHGPPrediction, VHGPPredictionGradient]:
         pred, grad = self.model.predict_with_gradient(Xs)
-        if self.noise is None and not self.clip_mean:
+        if self.noise is None:
             return pred, grad
-        f_mean, inside = self._clip(pred.f_mean)
-        df_mean = grad.f_mean * inside[:, None]
-        g_mean, g_var, dg_mean, dg_var = pred.g_mean, pred.g_var, grad.g_mean, grad.g_var
-        if self.noise is not None:
-            Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
-            g_mean, g_var = self.noise.predict(Xa)
-            dg_mean, dg_var = self.noise.gradient(Xa)
-        return (VHGPPrediction(f_mean, pred.f_var, g_mean, g_var),
-                VHGPPredictionGradient(df_mean, grad.f_var, dg_mean, dg_var))
+        Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
+        g_mean, g_var = self.noise.predict(Xa)
+        dg_mean, dg_var = self.noise.gradient(Xa)
+        return (VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var),
+                VHGPPredictionGradient(grad.f_mean, grad.f_var, dg_mean, dg_var))
 
     def estimate(self, x: np.ndarray, kappa: float = 0.0) -> CriticEstimate:
         """J~, r~, F~ and gradients at one point x (d,)."""
@@ -423,8 +406,7 @@ class LocalCritic:
         else:
             model.fit(X, y)
         self.n_fits += 1
-        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None,
-                       clip_mean=local and self.config.clip_mean)
+        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None)
         self._remember(key, fit)
         return fit
 
@@ -484,7 +466,7 @@ class LocalCritic:
         if y.shape != ids.shape:
             raise CriticInputError("fit record: y and ids differ in length")
         model = VHGP.from_params(self._data.points[ids], y, VHGPParams.from_dict(record["params"]))
-        fit = LocalFit(ids, model, noise=self._noise(model), clip_mean=self.config.clip_mean)
+        fit = LocalFit(ids, model, noise=self._noise(model))
         if np.array_equal(y, self._data.costs[ids]):
             self._remember(self._key(ids) + bytes([True]), fit)
         return fit

@@ -454,6 +454,8 @@ class ERSAC:
             try:
                 fit = self._update_fit(theta)
                 J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
+                if self._critic.config.clip_mean:  # the TD baseline within its costs' range
+                    J_t = float(np.clip(J_t, np.min(fit.model.y), np.max(fit.model.y)))
                 r_p = np.asarray(fit.estimate_many(X)[1], dtype=float)
                 if not (math.isfinite(J_t) and math.isfinite(r_t) and np.all(np.isfinite(r_p))) or r_t <= 0:
                     raise FitError(f"non-finite critic values J~ {J_t}, r~ {r_t}, r~(theta+z) {r_p.tolist()}")

@@ -141,52 +141,34 @@ def _two_mode(seed: int, n: int = 10, d: int = 7) -> tuple[np.ndarray, Data]:
 @given(seed=st.integers(0, 10_000), n=st.integers(10, 15))
 def test_small_neighbourhoods_keep_r_above_the_documented_floor(seed: int, n: int) -> None:
     """Below 2 (d + 1) points r~ at the neighbourhood's centre is at least
-    sqrt(m0 / (m0 + n)) std(y), m0 = 2 (d + 1) - n; J~ stays within the costs' range."""
+    sqrt(m0 / (m0 + n)) std(y), m0 = 2 (d + 1) - n."""
     theta, data = _two_mode(seed, n)
     fit = LocalCritic(data, CriticConfig(epsilon=0.2625)).fit(theta)
     y = data.costs[fit.ids]
     m0 = 2 * 8 - fit.ids.size
     c = data.points[fit.ids].mean(0)
     assert fit.estimate(c).r >= (1 - 1e-6) * np.sqrt(m0 / (m0 + fit.ids.size)) * y.std(ddof=1)
-    Xs = theta + 0.15 * np.random.default_rng(seed).standard_normal((200, 7))
-    J = fit.predict(Xs).f_mean
-    assert J.min() >= y.min() and J.max() <= y.max()
 
 
 def test_two_mode_costs_are_not_explained_away_at_ten_points_in_7d() -> None:
     """The lifting failure (docs/learner.md): 10 points, costs 4.5 or 38 at random. The
-    previous critic (no small-sample prior, no clip) put r~ far below the spread and J~ far
-    outside the costs in some draws; the default keeps r~ within [0.5, 1.5] x the spread at
-    theta and J~ inside the costs."""
+    previous critic (no small-sample prior) put r~ far below the spread in some draws; the
+    default keeps r~ within [0.5, 1.5] x the spread at theta."""
     worst_prev, worst = np.inf, np.inf
-    outside_prev = 0
     for seed in range(12):
         theta, data = _two_mode(seed)
         sd = data.costs.std(ddof=1)
-        prev = LocalCritic(data, CriticConfig(epsilon=0.2625, small_n_prior=False, clip_mean=False)).fit(theta)
+        prev = LocalCritic(data, CriticConfig(epsilon=0.2625, small_n_prior=False)).fit(theta)
         new = LocalCritic(data, CriticConfig(epsilon=0.2625)).fit(theta)
         worst_prev = min(worst_prev, prev.estimate(theta).r / sd)
         worst = min(worst, new.estimate(theta).r / sd)
         assert new.estimate(theta).r < 1.5 * sd
-        Xs = theta + 0.1 * np.random.default_rng(seed).standard_normal((100, 7))
-        Jp, Jn = prev.predict(Xs).f_mean, new.predict(Xs).f_mean
-        lo, hi = data.costs.min(), data.costs.max()
-        outside_prev += int(Jp.min() < lo - 5 or Jp.max() > hi + 5)
-        assert Jn.min() >= lo and Jn.max() <= hi
-    assert worst_prev < 0.2 and outside_prev > 0
+    assert worst_prev < 0.2
     assert worst > 0.5
 
 
-def test_a_clipped_mean_has_zero_gradient_and_estimates_carry_g_var() -> None:
+def test_estimates_carry_g_var() -> None:
     theta, data = _two_mode(3)
     fit = LocalCritic(data, CriticConfig(epsilon=0.2625)).fit(theta)
-    y = data.costs[fit.ids]
-    Xs = theta + 0.3 * np.random.default_rng(0).standard_normal((300, 7))
-    raw = fit.model.predict(Xs).f_mean
-    pred, grad = fit.predict_with_gradient(Xs)
-    out = (raw < y.min()) | (raw > y.max())
-    assert out.any()  # this draw rings beyond the costs somewhere
-    np.testing.assert_array_equal(pred.f_mean, np.clip(raw, y.min(), y.max()))
-    assert np.all(grad.f_mean[out] == 0) and np.any(grad.f_mean[~out] != 0)
-    e = fit.estimate(theta)
-    assert e.g_var == pytest.approx(float(fit.predict(theta[None]).g_var[0]))
+    for x in (theta, theta + 0.1):
+        assert fit.estimate(x).g_var == pytest.approx(float(fit.predict(x[None]).g_var[0]))

@@ -127,3 +127,30 @@ def test_interleaved_moves_leave_sub_sigma_moves_to_the_gradient_step() -> None:
 def test_bad_options_are_refused(kw) -> None:  # noqa: ANN001
     with pytest.raises(InvalidInputError):
         make(**kw)
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_the_td_baseline_stays_within_the_costs_it_was_fitted_to(seed: int) -> None:
+    """Costs of two modes (4.5 or 38 at random) in 7-D: a near-interpolating fit rings, and
+    without the clip J~(theta) leaves the costs' range (these seeds: -4.1 and 40.4 at the 11th
+    update); with it (the default) every update's J~ is inside [min, max] of its fit's costs."""
+    def costs(clip: bool) -> tuple[list, list]:
+        from ersac_hil.critic import CriticConfig
+
+        L = ERSAC(np.full(7, 1.0), 0.075, 0.5, 0.0, 0.2625, [[0.0, 2.0]] * 7, seed=seed,
+                  critic=CriticConfig(epsilon=1.0, clip_mean=clip))
+        noise = np.random.default_rng(seed)
+        J, ranges = [], []
+        for _ in range(12):
+            x = L.ask()
+            u = L.tell(x, (4.5 if noise.random() < 0.3 else 38.0) + 0.3 * noise.standard_normal())
+            if u.J_tilde is not None:
+                y = L.observations.costs[L.local_critic.neighbourhood(u.theta_before)]
+                J.append(u.J_tilde)
+                ranges.append((y.min(), y.max()))
+        return J, ranges
+
+    J, ranges = costs(False)
+    assert any(j < lo - 1 or j > hi + 1 for j, (lo, hi) in zip(J, ranges))
+    J, ranges = costs(True)
+    assert all(lo <= j <= hi for j, (lo, hi) in zip(J, ranges))
