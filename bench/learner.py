@@ -17,7 +17,10 @@
    install; its risk-averse acquisitions would still need a heteroscedastic model of ours).
 2. The critic against the truth at ERSAC's final theta (r~/r, slope of r~) and the largest
    single move max_i |delta theta_i| / sigma_i per run.
-3. GP / VHGP fit time for n = 25, 50, 100, 200 (interleaved in one run); offline selection.
+3. Two cost modes in 7-D (`--only two-mode`, the lifting task's shape): the probability that
+   the policy after 30 episodes succeeds, per critic variant (CriticConfig.small_n_prior,
+   clip_mean on / off).
+4. GP / VHGP fit time for n = 25, 50, 100, 200 (interleaved in one run); offline selection.
 
 BLAS is pinned to one thread (threadpoolctl) in every process; seeds run in 2 worker
 processes (the machine has 2 cores).
@@ -526,6 +529,59 @@ def report(results: list, problems: list[str], methods: list[str]) -> None:
                       f"{100 * np.mean(arr('moves_over_3')):.1f} % > 3 sigma, skipped {int(arr('skipped').sum())}")
 
 
+# ----------------------------------------------------------------------------- two cost modes
+# The lifting task's shape: in 7-D a lift succeeds (cost 5 + a shallow bowl) inside a band of
+# u = w.(theta - 1) and drops the bottle (cost 40) outside it, with sharp logistic edges; the
+# start is on the lower edge with success probability 0.2 (the paper's "succeeded only part of
+# the time").  The lifting settings: sigma 0.075, eta 0.5, epsilon 3.5 sigma, eta / r~ in
+# [0.01, 0.5], 30 episodes, kappa 0.  Figure: the probability that the policy after 30
+# episodes succeeds (what `reproduce lifting`'s test trials measure), per critic variant.
+_BAND_W = np.random.default_rng(7).standard_normal(7)
+_BAND_W /= np.linalg.norm(_BAND_W)
+_BAND_EDGE, _BAND_TOP, _BAND_SCALE = 0.0, 0.35, 0.03
+TWO_MODE_VARIANTS = {
+    "default": {},
+    "previous": {"small_n_prior": False, "clip_mean": False},
+    "no-clip": {"clip_mean": False},
+    "no-prior": {"small_n_prior": False},
+}
+
+
+def band_success(theta: np.ndarray) -> float:
+    u = float((theta - 1.0) @ _BAND_W)
+    return 1.0 / ((1.0 + math.exp(-(u - _BAND_EDGE) / _BAND_SCALE)) * (1.0 + math.exp(-(_BAND_TOP - u) / _BAND_SCALE)))
+
+
+def _two_mode_job(args: tuple[str, int]) -> tuple[str, int, float, float]:
+    variant, seed = args
+    with threadpool_limits(1, user_api="blas"):
+        theta0 = 1.0 + (_BAND_EDGE + _BAND_SCALE * math.log(0.2 / 0.8)) * _BAND_W
+        L = ERSAC(theta0, 0.075, 0.5, 0.0, 3.5 * 0.075, np.column_stack([np.zeros(7), np.full(7, 2.0)]), seed=seed,
+                  critic=CriticConfig(epsilon=1.0, **TWO_MODE_VARIANTS[variant]))
+        noise = np.random.default_rng(1000 + seed)
+        largest = 0.0
+        for _ in range(30):
+            x = L.ask()
+            ok = noise.random() < band_success(x)
+            bowl = 5.0 + 2.0 * float(np.sum((x - 1.0 - 0.17 * _BAND_W) ** 2))
+            u = L.tell(x, (bowl if ok else 40.0) + 0.05 * noise.standard_normal())
+            if not u.warmup:
+                largest = max(largest, float(np.max(np.abs(u.theta_after - u.theta_before)) / 0.075))
+        return variant, seed, band_success(L.theta), largest
+
+
+def two_mode(seeds: int) -> None:
+    jobs = [(v, s) for v in TWO_MODE_VARIANTS for s in range(seeds)]
+    with mp.get_context("fork").Pool(2) as pool:
+        rows = pool.map(_two_mode_job, jobs, chunksize=1)
+    print(f"\n## Two cost modes, 7-D (lifting shape; {seeds} seeds): P(success) of the policy after 30 episodes")
+    print(f"{'critic':>10} | mean P(success) | seeds with P >= 0.9 | largest move / sigma")
+    for v in TWO_MODE_VARIANTS:
+        p = np.array([r[2] for r in rows if r[0] == v])
+        big = max(r[3] for r in rows if r[0] == v)
+        print(f"{v:>10} | {p.mean():15.2f} | {np.mean(p >= 0.9):19.2f} | {big:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="reduced run: 1-D problems, 4 seeds")
@@ -533,7 +589,7 @@ def main() -> None:
     ap.add_argument("--problems", default=None, help=f"comma-separated, of {', '.join(PROBLEMS)}")
     ap.add_argument("--methods", default=None, help=f"comma-separated, of {', '.join(METHODS)}")
     ap.add_argument("--json", default=None, help="also write the raw results to this file")
-    ap.add_argument("--only", choices=["table", "timing"], default=None, help="run one part only")
+    ap.add_argument("--only", choices=["table", "timing", "two-mode"], default=None, help="run one part only")
     args = ap.parse_args()
     seeds = args.seeds or (4 if args.quick else 20)
     problems = args.problems.split(",") if args.problems else ["1d-bracing", "rahbo-sine"] if args.quick else list(PROBLEMS)
@@ -550,6 +606,9 @@ def main() -> None:
     if args.only == "timing":
         timing(args.quick)
         return
+    if args.only == "two-mode":
+        two_mode(seeds if args.seeds else 40)
+        return
     jobs = [(pn, m, k, s) for pn in problems for k in KAPPAS for m in methods for s in range(seeds)]
     with mp.get_context("fork").Pool(2) as pool:
         results = []
@@ -564,6 +623,7 @@ def main() -> None:
             json.dump(results, fh)
     report(results, problems, methods)
     if args.only is None:
+        two_mode(seeds)
         timing(args.quick)
     print(f"\ntotal wall time {time.perf_counter() - t0:.0f} s; load average at the end "
           f"{' '.join(f'{v:.1f}' for v in os.getloadavg())}")
