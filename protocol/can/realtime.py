@@ -26,9 +26,13 @@ def request_realtime(priority: int = SYNC_PRIORITY) -> str:
         return "real-time scheduling unavailable on this platform: normal scheduling"
     param = os.sched_param(priority)
     try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-        for tid in tids:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+        tids = []
+        for tid in (int(t) for t in os.listdir("/proc/self/task")):
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            except ProcessLookupError:  # the thread ended since the listing: nothing to schedule
+                continue
+            tids.append(tid)
     except PermissionError:
         return ("SCHED_FIFO not permitted (needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least "
                 f"{priority}, e.g. 'ulimit -r {priority}'): normal scheduling, expect late cycles under load")
