@@ -258,9 +258,7 @@ class EpisodeRunner:
 
     @staticmethod
     def _flags(episode: _Episode, tel: Telemetry) -> None:
-        status = 0
-        for word in tel.status:  # tel.any_status, without an enum per cycle
-            status |= word
+        status = tel.status_bits
         if status & _OUTCOME_BITS:
             for bit, flag in OUTCOME_STATUS.items():
                 if status & bit:

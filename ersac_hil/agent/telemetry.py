@@ -151,12 +151,17 @@ class Telemetry:
         return Status(self.status[STATUS_DEVICES.index(device)])
 
     @property
-    def any_status(self) -> Status:
-        """OR of every device's status word."""
+    def status_bits(self) -> int:
+        """OR of every device's status word as a plain int (the per-cycle check: no enum)."""
         out = 0
         for word in self.status:
             out |= word
-        return Status(out)
+        return out
+
+    @property
+    def any_status(self) -> Status:
+        """OR of every device's status word."""
+        return Status(self.status_bits)
 
 
 class TelemetryDecoder:
