@@ -37,6 +37,9 @@ __all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "router_confi
            "register"]
 
 DEFAULT_ROUTER = "tls/127.0.0.1:7447"
+#: Roles whose certificate also serves TLS listeners (the router; a simulator's direct CAN
+#: link, ``ersac_hil.canbus.direct``): they carry the router's host names.
+LISTENING_ROLES = ("router", "simulator")
 DEFAULT_DAYS = 825
 
 
@@ -198,7 +201,7 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
     configs = {}
     for role in ROLES:
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = _issue(role, key, ca_key, ca_cert.subject, days, names if role == "router" else ())
+        cert = _issue(role, key, ca_key, ca_cert.subject, days, names if role in LISTENING_ROLES else ())
         _write(out / f"{role}.key", _key_pem(key), private=True)
         _write(out / f"{role}.crt", cert.public_bytes(serialization.Encoding.PEM))
         if role == "router":

@@ -9,11 +9,16 @@ and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
     agent    ersac-hil agent --robot R --bus-interface zenoh --bus-channel ... --zenoh tcp/127.0.0.1:P
     daemon   ersac-hil daemon --robot R --task T --kappa K --episodes E --zenoh ... --db OUT/demo.db --new
 
-The CAN bus of each simulator/agent pair is CAN over Zenoh through the same router
-(``--can zenoh``, the default; with ``--secure`` over TLS too, the simulator with the
+The CAN bus of each simulator/agent pair is CAN over Zenoh on a direct link (``--can direct``,
+the default): the simulator's bus listens on a free port of the router's address
+(``--bus-kwargs listen=tcp/127.0.0.1:Q``, ``ersac_hil.canbus.direct``) and the agent's bus
+connects to it, one router hop less each way; with ``--secure`` the listener is
+``tls/...:Q`` with the simulator's certificate, client certificates required and the router's
+access control (only the agent and simulator roles on ``can/**``). ``--can zenoh`` carries it
+through the router instead (with ``--secure`` over TLS too, the simulator with the
 ``simulator`` role's certificate and the agent with the agent's, ``--bus-kwargs
 zenoh_config=OUT/certs/<role>.json5``); ``--can hub`` puts it on a python-can-remote loopback
-hub (``ersac-hil bus --port H``) per pair instead. ``Stack`` starts and stops the router and
+hub (``ersac-hil bus --port H``) per pair. ``Stack`` starts and stops the router and
 the simulator/agent pairs (``ersac-hil reproduce`` uses it too, with several pairs). The
 daemon's progress lines are shown as they come; every child's output is kept in
 ``OUT/logs/<name>.log``. When the daemon has finished, the report (``ersac-hil report``) is
@@ -183,7 +188,8 @@ class DemoConfig:
             Zenoh links (``#bind=``), to put them on other addresses than the router.
         dashboard: also start ``ersac-hil dashboard`` and print its URL.
         dashboard_port: its port (0: a free one).
-        can: CAN transport of the simulator/agent pair: ``zenoh`` or ``hub`` (see the module doc).
+        can: CAN transport of the simulator/agent pair: ``direct``, ``zenoh`` or ``hub`` (see the
+            module doc).
         fleet: simulator/agent pairs behind the daemon.
         batch: perturbations per update (``None``: ``fleet``).
     """
@@ -202,7 +208,7 @@ class DemoConfig:
     agent_host: str | None = None
     dashboard: bool = False
     dashboard_port: int = 8050
-    can: str = "zenoh"
+    can: str = "direct"
     fleet: int = 1
     batch: int | None = None
 
@@ -252,13 +258,14 @@ class Stack:
             (``ersac-hil certs init <logs>/../certs``); ``zenoh_args(role)`` gives each role's flags.
         router_host: loopback address the router listens on.
         agent_host: loopback source address of the agents' Zenoh links (``#bind=``).
-        can: ``zenoh`` (CAN over Zenoh through the router; with ``secure``, the simulator and
-            the agent on it with their roles' certificates) or ``hub``.
+        can: ``direct`` (CAN over Zenoh, the agent's bus connected to the simulator's listener;
+            the agent starts once its simulator is up), ``zenoh`` (through the router; with
+            ``secure``, the simulator and the agent on it with their roles' certificates) or ``hub``.
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
-                 router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "zenoh",
+                 router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "direct",
                  fleet: bool = False) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
@@ -293,7 +300,8 @@ class Stack:
         return child
 
     def start(self) -> Stack:
-        """Certificates (secure), router, then per pair: (hub,) simulator, agent. Raises ``ChildFailed``."""
+        """Certificates (secure), router, then per pair: (hub,) simulator, agent (``direct``: once
+        the simulator listens). Raises ``ChildFailed``."""
         from ersac_hil.zenoh_session import free_tcp_port
 
         if self._secure:
@@ -302,6 +310,7 @@ class Stack:
             self.roles = {role: str(path) for role, path in made.configs.items()}
         self.launch("router", cli_argv("router", *self.zenoh_args("router"))).wait_for(
             r"Zenoh router: ", 20, self.stop)
+        sims = []
         for k in range(1, self._n + 1):
             tag = "" if self._n == 1 else str(k)
             prefix = "ersac" if k == 1 or self._fleet else f"ersac{k}"
@@ -313,15 +322,34 @@ class Stack:
                     r"CAN hub: ws://", 20, self.stop)
                 bus = ["--bus-interface", "remote", "--bus-channel", channel]
                 sim_bus = agent_bus = bus
+            elif self._can == "direct":
+                sim_bus, channel = self._direct_listener(f"{prefix}-{robot}")
+                agent_bus = self.can_args("agent", channel, self._agent_host)
             else:
                 channel = f"{prefix}-{robot}@{self.endpoint}"
                 sim_bus, agent_bus = self.can_args("simulator", channel), self.can_args(
                     "agent", channel, self._agent_host)
             sim = self.launch(f"sim{tag}", cli_argv("sim", *sim_bus, "--seed", str(self._seed + k - 1)))
+            sims.append((tag, prefix, robot, channel, sim, agent_bus))
+        for tag, prefix, robot, channel, sim, agent_bus in sims:
+            if self._can == "direct":  # the agent's bus connects to the simulator's listener
+                sim.wait_for(r"^simulator: \d+ nodes", 60, self.stop)
             agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", robot, "--prefix", prefix,
                                                         *agent_bus, *self.zenoh_args("agent", self._agent_host)))
             self.pairs.append(Pair(robot, prefix, channel, sim, agent))
         return self
+
+    def _direct_listener(self, name: str) -> tuple[list[str], str]:
+        """The simulator's bus flags listening on a free port of the router's host (``tls`` with
+        the simulator's certificate and the roles' access control if ``secure``) and the channel
+        (``name@endpoint``) the agent connects to."""
+        from ersac_hil.zenoh_session import free_tcp_port, split_endpoint
+
+        protocol, host, _ = split_endpoint(self.endpoint)
+        listen = f"{protocol}/{host}:{free_tcp_port(host)}"
+        identity = [f"zenoh_config={self.roles['simulator']}"] if self.roles else []
+        return (["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}", *identity],
+                f"{name}@{listen}")
 
     def check(self, children: Sequence[Child] | None = None) -> None:
         """``ChildFailed`` if a simulator or an agent (or one of ``children``) has exited."""
@@ -451,10 +479,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard; prints its URL")
     p.add_argument("--dashboard-port", dest="dashboard_port", type=tcp_port, default=8050,
                    help="dashboard port (default 8050; 0 = a free one)")
-    p.add_argument("--can", choices=("zenoh", "hub"), default="zenoh",
-                   help="CAN between simulator and agent: over Zenoh through the router (default; "
-                        "with --secure over TLS with their roles' certificates) or on a "
-                        "python-can-remote loopback hub")
+    p.add_argument("--can", choices=("direct", "zenoh", "hub"), default="direct",
+                   help="CAN between simulator and agent: over Zenoh on a direct link, the agent "
+                        "connected to the simulator (default; with --secure TLS and the router's "
+                        "access control on the simulator's listener), over Zenoh through the "
+                        "router, or on a python-can-remote loopback hub")
     p.add_argument("--fleet", type=positive_int, default=1, metavar="N",
                    help="simulator/agent pairs behind the one daemon (default 1)")
     p.add_argument("--batch", type=positive_int, metavar="K",

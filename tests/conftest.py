@@ -5,7 +5,10 @@ virtual channel name, a new loopback hub, a new CAN-over-Zenoh channel on the se
 embedded router) so tests never hear each other. ``zenoh-tls`` is CAN over Zenoh through a
 router as ``ersac-hil certs init`` configures it (TLS, client certificates, access control by
 role), every participant with the ``agent`` role's config (the ``simulator`` role has the
-same CAN rule).
+same CAN rule). ``zenoh-direct`` is a direct link (``ersac_hil.canbus.direct``): every
+participant, with the ``agent`` role's config, connects to a bus listening with the
+``simulator`` role's config (TLS, client certificates, the router's access control) instead
+of a router.
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 
-BACKENDS = ("virtual", "remote", "zenoh", "zenoh-tls", "socketcan")
+BACKENDS = ("virtual", "remote", "zenoh", "zenoh-tls", "zenoh-direct", "socketcan")
 
 
 @pytest.fixture(scope="session")
@@ -50,6 +53,22 @@ def secure_can_router(tmp_path_factory):
         yield certs
 
 
+@pytest.fixture(scope="session")
+def can_listener(secure_can_router):
+    """A bus listening as the simulator does on a direct link (``tls/`` on the secure router's
+    address, the ``simulator`` role's config); yields its endpoint."""
+    import can
+    from ersac_hil.zenoh_session import free_tcp_port
+    host = "127.0.0.7"
+    endpoint = f"tls/{host}:{free_tcp_port(host)}"
+    bus = can.Bus(interface="zenoh", channel="listener", listen=endpoint,
+                  zenoh_config=str(secure_can_router.configs["simulator"]))
+    try:
+        yield endpoint
+    finally:
+        bus.shutdown()
+
+
 @pytest.fixture(params=BACKENDS)
 def can_backend(request):
     """A ``BusConfig`` every participant of the test opens its own bus with."""
@@ -62,6 +81,11 @@ def can_backend(request):
     elif kind == "zenoh":
         router = request.getfixturevalue("can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{router.endpoint}")
+    elif kind == "zenoh-direct":
+        endpoint = request.getfixturevalue("can_listener")
+        certs = request.getfixturevalue("secure_can_router")
+        yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{endpoint}",
+                        options=(("zenoh_config", str(certs.configs["agent"])),))
     elif kind == "zenoh-tls":
         certs = request.getfixturevalue("secure_can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}",

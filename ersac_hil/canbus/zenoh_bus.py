@@ -20,6 +20,13 @@ and ``simulator`` roles use the ``can/**`` keys)::
     can.Bus(interface="zenoh", channel="can0@tls/127.0.0.1:7447", zenoh_config="certs/agent.json5")
     can.Bus(interface="zenoh", channel="can0", zenoh_config="certs/simulator.json5")  # its router
 
+A direct link without the router (``ersac_hil.canbus.direct``): one bus listens, the others
+connect to it (it routes between them), with the router's TLS and access control when it has
+a role's certificate::
+
+    can.Bus(interface="zenoh", channel="can0", listen="tls/127.0.0.1:7450", zenoh_config="certs/simulator.json5")
+    can.Bus(interface="zenoh", channel="can0@tls/127.0.0.1:7450", zenoh_config="certs/agent.json5")
+
 python-can's own configuration (``~/.canrc``, ``CAN_CONFIG``) and ``--bus-kwargs`` give these
 as strings; they are read like the keyword arguments. A bus does not hear its own frames
 unless ``receive_own_messages=True``. Delivery is reliable and blocking
@@ -63,6 +70,7 @@ import can
 import zenoh
 from can.bus import BusABC, CanProtocol
 
+from ersac_hil.canbus.direct import listener_config
 from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session, resolve_config
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
@@ -162,6 +170,13 @@ def parse_channel(channel: Any, connect: str | Sequence[str] | None = None, *,
     return name, tuple(endpoints)
 
 
+def _endpoints(value: str | Sequence[str] | None) -> tuple[str, ...]:
+    """Endpoints given as a comma-separated string (python-can configuration) or a sequence."""
+    if value is None:
+        return ()
+    return tuple(e for e in value.split(",") if e) if isinstance(value, str) else tuple(value)
+
+
 def _flag(value: bool | str, name: str) -> bool:
     """A boolean keyword argument, also as python-can's configuration gives it (a string)."""
     if isinstance(value, bool):
@@ -187,6 +202,9 @@ class ZenohBus(BusABC):
         zenoh_config: a Zenoh json5 configuration file (TLS certificates of a role...); its
             endpoints are used when the channel and ``connect`` give none.
         insecure: allow plain endpoints off loopback (``--insecure``).
+        listen: endpoints this bus listens on for the others of a direct link (string,
+            comma-separated, or sequence; ``ersac_hil.canbus.direct``); it then connects only
+            to the channel's own endpoints.
         **kwargs: other python-can arguments (``bitrate``, ``can_filters``...); bit rate
             has no meaning here and is ignored.
 
@@ -197,20 +215,26 @@ class ZenohBus(BusABC):
     def __init__(self, channel: Any = None, can_filters=None, *, connect: str | Sequence[str] | None = None,  # noqa: ANN001
                  prefix: str = DEFAULT_PREFIX, receive_own_messages: bool = False,
                  mode: str = "client", connect_timeout: float = 10.0, zenoh_config: str | None = None,
-                 insecure: bool | str = False, **kwargs: Any) -> None:
+                 insecure: bool | str = False, listen: str | Sequence[str] | None = None,
+                 **kwargs: Any) -> None:
         try:
-            name, endpoints = parse_channel(channel, connect, need_endpoint=not zenoh_config)
+            listen_eps = _endpoints(listen)
+            name, endpoints = parse_channel(channel, connect, need_endpoint=not (zenoh_config or listen_eps))
             if mode not in ("client", "peer"):
                 raise ValueError(f"zenoh CAN bus mode must be client or peer, got {mode!r}")
             insecure = _flag(insecure, "insecure")
             options = ZenohOptions(endpoints, str(zenoh_config) if zenoh_config else None, insecure)
-            config = resolve_config(options, mode=mode, connect_timeout_s=float(connect_timeout))
+            if listen_eps:
+                config = listener_config(options, listen_eps, connect_timeout_s=float(connect_timeout))
+            else:
+                config = resolve_config(options, mode=mode, connect_timeout_s=float(connect_timeout))
             for chunk in str(prefix).split("/"):
                 validate_chunk(chunk, "zenoh CAN key prefix")
         except (ValueError, ZenohConfigError, KeySpaceError) as exc:
             raise can.CanInitializationError(str(exc)) from None
         self.key = f"{prefix}/{name}"
-        via = ",".join(json.loads(config.get_json("connect/endpoints")))
+        via = ",".join(json.loads(config.get_json("connect/endpoints")) or
+                       [f"listening on {','.join(listen_eps)}"])
         self.channel_info = f"CAN over Zenoh on {self.key} via {via}" + (
             f" ({zenoh_config})" if zenoh_config else "")
         self._name = name

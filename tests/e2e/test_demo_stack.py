@@ -1,5 +1,6 @@
-"""End to end through every real process: Zenoh router (also carrying the CAN bus), firmware
-simulator (MuJoCo), agent (CANopen master) and learner daemon, started by ``ersac-hil demo``.
+"""End to end through every real process: Zenoh router, firmware simulator (MuJoCo, its CAN
+bus listening for the agent's), agent (CANopen master) and learner daemon, started by
+``ersac-hil demo``.
 
 Checks the learning run in the store, the report files, and that no child outlives the demo,
 also when the demo is interrupted with Ctrl-C (SIGINT).

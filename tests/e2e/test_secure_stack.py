@@ -3,8 +3,10 @@
 One stack for the module (``ersac-hil demo --secure --linger`` code): the router listens on
 ``tls/127.0.0.2``, the daemon connects from 127.0.0.3 and the agent from 127.0.0.4 (loopback
 aliases, ``#bind=``), each with its role's certificate from ``certs init``; the CAN bus
-between simulator and agent runs over the same TLS router, the simulator with the
-``simulator`` role's certificate, the agent (from 127.0.0.4 too) with its own. The tests then attach as other identities from this process.
+between simulator and agent is a direct link: the simulator listens on ``tls/127.0.0.2`` with
+the ``simulator`` role's certificate and the router's access control, the agent's bus
+connects to it (from 127.0.0.4 too) with its own. The tests then attach as other identities
+from this process.
 """
 from __future__ import annotations
 
@@ -113,9 +115,11 @@ def test_learns_over_tls_with_router_daemon_and_agent_on_different_addresses(sta
         run = store.runs()[-1]
         assert len(store.ok_episodes(run.run_id)) == EPISODES
     assert _peers(info["pids"]["daemon"], (ROUTER, port)) == {DAEMON}
-    assert _peers(info["pids"]["agent"], (ROUTER, port)) == {AGENT}  # its Zenoh session and its CAN bus
-    assert info["can"].endswith(f"@{info['router']}")
-    assert _peers(info["pids"]["sim"], (ROUTER, port)) == {"127.0.0.1"}  # CAN over the TLS router
+    assert _peers(info["pids"]["agent"], (ROUTER, port)) == {AGENT}  # its Zenoh session
+    protocol, host, can_port = split_endpoint(info["can"].split("@", 1)[1])
+    assert (protocol, host) == ("tls", ROUTER) and can_port != port
+    assert _peers(info["pids"]["agent"], (ROUTER, can_port)) == {AGENT}  # its CAN bus, to the simulator
+    assert _peers(info["pids"]["sim"], (ROUTER, port)) == set()  # the simulator only listens
     assert any(f"{EPISODES} episodes in" in line for line in stack.lines)
 
 
@@ -123,6 +127,19 @@ def test_plain_tcp_client_cannot_connect(stack):
     _, host, port = split_endpoint(stack.info["router"])
     with pytest.raises(ZenohSessionError):
         open_session(make_config("client", connect=[f"tcp/{host}:{port}"]))
+
+
+def test_the_simulators_can_listener_admits_only_the_can_roles(stack):
+    import can
+    info = stack.info
+    _, host, can_port = split_endpoint(info["can"].split("@", 1)[1])
+    with pytest.raises(can.CanInitializationError):  # no certificate: no link
+        can.Bus(interface="zenoh", channel=f"x@tcp/{host}:{can_port}", connect_timeout=0.5)
+    observer = can.Bus(interface="zenoh", channel=info["can"], zenoh_config=info["configs"]["observer"])
+    try:  # an identity of the CA, but not a CAN role: the listener's access control keeps it deaf
+        assert observer.recv(1.0) is None  # the agent's heartbeat (every 100 ms) never reaches it
+    finally:
+        observer.shutdown()
 
 
 def test_tls_client_without_a_valid_certificate_cannot_connect(stack, tmp_path):
