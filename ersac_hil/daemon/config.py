@@ -16,6 +16,7 @@ optional ``[weights]`` table::
     task = "bracing"
     fleet = ["ubot2", "lab$*"]         # more agents serving this run's episodes
     batch = 2                          # perturbations per update (default 1)
+    interleave_every = 5               # offline search every 5th update (default 0: off)
     kappa = 2.0
     episodes = 45
     zenoh = ["tls/192.0.2.10:7447"]
@@ -62,9 +63,10 @@ class ConfigError(ValueError):
 #: Fields that define a learning run (stored with it; a resumed run keeps the stored ones).
 LEARNER_FIELDS: tuple[str, ...] = (
     "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed", "batch",
+    "interleave_every",
 )
 #: The value of a learner field a run stored before the field existed.
-LEGACY_SETTINGS: dict[str, Any] = {"batch": 1}
+LEGACY_SETTINGS: dict[str, Any] = {"batch": 1, "interleave_every": 0}
 #: One key chunk naming robots: a name or a pattern with ``*`` / ``$*`` (e.g. ``ubot$*``).
 FLEET_PATTERN = re.compile(r"\*|(?:[A-Za-z0-9_.\-]|\$\*){1,64}")
 class TaskDefaults(msgspec.Struct, frozen=True):
@@ -122,6 +124,9 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             goes to whichever is free (``--robot A --robot B``: robot A, fleet (B,)).
         batch: perturbations per update, evaluated in parallel on the fleet and combined as
             the average of their eq. 10 terms (1: the paper's Algorithm 1).
+        interleave_every: interleaved offline/online search (docs/learner.md): after every
+            k-th update theta may move to the local argmin of F~ on that update's critic;
+            0 (default): off, the paper's Algorithm 1.
         prefix: key prefix (default ``ersac``).
         task: ``bracing`` or ``lifting`` (``protocol.zenoh.TASKS``).
         kappa: initial risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``.
@@ -159,6 +164,7 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     robot: str
     fleet: tuple[str, ...] = ()
     batch: Annotated[int, Meta(ge=1, le=64)] = 1
+    interleave_every: Annotated[int, Meta(ge=0, le=1000)] = 0
     task: TaskName = "bracing"
     kappa: Kappa = 0.0
     episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None

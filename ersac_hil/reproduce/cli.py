@@ -15,8 +15,8 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import asdict
+from collections.abc import Callable, Collection
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from ersac_hil.cli_args import output_dir
@@ -63,7 +63,7 @@ def _count(out: Path, sizes, experiments) -> tuple[int, Callable[[], int]]:  # n
     return total, count
 
 
-def _plan(out: Path, experiments, requested, explicit: bool):  # noqa: ANN001, ANN202
+def _plan(out: Path, experiments, requested, explicit):  # noqa: ANN001, ANN202
     """``planfile.resolve`` on ``out``'s ``plan.json``; writes the new record and returns the
     ``Resolved`` sizes, or raises ``PlanConflict`` (nothing written)."""
     from .planfile import resolve
@@ -77,15 +77,15 @@ def _plan(out: Path, experiments, requested, explicit: bool):  # noqa: ANN001, A
 
 
 def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading.Event,  # noqa: ANN001
-                  say: Callable[[str], None] = print, explicit: bool = True) -> int:
-    """Run ``experiment`` (or ``all``) with ``sizes`` (``explicit``: asked for by an option;
-    else what ``out`` recorded for each experiment where it did), analyse, write the results.
-    Returns an exit code."""
+                  say: Callable[[str], None] = print, explicit: Collection[str] | None = None) -> int:
+    """Run ``experiment`` (or ``all``) with ``sizes`` (``explicit``: the fields asked for by an
+    option, default all; the others as ``out`` recorded them for each experiment where it did),
+    analyse, write the results. Returns an exit code."""
     from ersac_hil.daemon.agents import Stopped
     from ersac_hil.demo import ChildFailed, Stack
 
     from . import bracing, contexts, lifting, results
-    from .planfile import PlanConflict
+    from .planfile import INTERLEAVE, SIZE_FIELDS, PlanConflict
     from .provenance import LEARNING, fingerprint, guard
     from .runner import JobFailed, Pool, Progress
     from .trials import TrialStore
@@ -95,7 +95,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     try:
-        resolved = _plan(out, experiments, sizes, explicit)
+        resolved = _plan(out, experiments, sizes, SIZE_FIELDS | {INTERLEAVE} if explicit is None else explicit)
     except PlanConflict as exc:
         print(f"ersac-hil reproduce: {out} {exc}", file=sys.stderr)
         return 2
@@ -144,6 +144,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
 
 def _main(args: argparse.Namespace) -> int:
     from .plan import FULL, QUICK
+    from .planfile import INTERLEAVE, SIZE_FIELDS
 
     if args.seeds is not None and args.seeds < 1:
         print("ersac-hil reproduce: --seeds must be >= 1", file=sys.stderr)
@@ -151,7 +152,15 @@ def _main(args: argparse.Namespace) -> int:
     if args.pairs < 1:
         print("ersac-hil reproduce: --pairs must be >= 1", file=sys.stderr)
         return 2
+    if args.lifting_interleave is not None and not 0 <= args.lifting_interleave <= 1000:
+        print("ersac-hil reproduce: --lifting-interleave must be in 0..1000 (0: the paper's Algorithm 1)",
+              file=sys.stderr)
+        return 2
     sizes = (QUICK if args.quick else FULL).with_seeds(args.seeds)
+    explicit: set[str] = set(SIZE_FIELDS) if args.quick or args.seeds is not None else set()
+    if args.lifting_interleave is not None:
+        sizes = replace(sizes, lifting_interleave_every=args.lifting_interleave)
+        explicit.add(INTERLEAVE)
     stop = threading.Event()
     received: list[int] = []
 
@@ -162,7 +171,7 @@ def _main(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         code = run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
-                             lambda line: print(line, flush=True), args.quick or args.seeds is not None)
+                             lambda line: print(line, flush=True), explicit)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -182,6 +191,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run seeds of bracing and lifting (default: bracing 10, lifting 5; "
                    "without --seeds/--quick: what --out recorded for each experiment)")
     p.add_argument("--quick", action="store_true", help="a tiny variant of every experiment (smoke test)")
+    p.add_argument("--lifting-interleave", type=int, default=None, metavar="K",
+                   help="the lifting runs' (and contexts') learner option: an offline search of the local "
+                   "critic's argmin every K-th update (daemon --interleave-every; default 0: the paper's "
+                   "Algorithm 1; without it: what --out recorded)")
     p.add_argument("--out", type=output_dir, default="reproduce-results",
                    help="output directory (default ./reproduce-results)")
     p.add_argument("--pairs", type=int, default=1,

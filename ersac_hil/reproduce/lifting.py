@@ -21,7 +21,7 @@ from .stats import describe, welch
 from .trials import Trial, TrialStore
 from .views import history
 
-__all__ = ["known_trials", "execute_runs", "execute", "analyse", "stages", "success", "GOAL_HEIGHT_M",
+__all__ = ["known_trials", "execute_runs", "execute", "analyse", "stages", "learner", "success", "GOAL_HEIGHT_M",
            "GOAL_TOLERANCE_M"]
 
 GOAL_HEIGHT_M = 1.2
@@ -32,6 +32,12 @@ def stages(sizes: Sizes) -> tuple[tuple[str, int], ...]:
     """(label, updates) of the tested policies."""
     return (("initial", 0), (f"after {sizes.lifting_stage}", sizes.lifting_stage),
             (f"after {sizes.lifting_episodes}", sizes.lifting_episodes))
+
+
+def learner(interleave_every: int) -> str:
+    """The learner of the lifting runs in words."""
+    return (f"interleaved offline search every {interleave_every} updates" if interleave_every
+            else "the paper's Algorithm 1")
 
 
 def success(trial: Trial) -> bool:
@@ -99,8 +105,9 @@ def analyse(sizes: Sizes, out: Path, trials: TrialStore, say=print) -> dict[str,
                 if r["cost"][last]["mean"] < r["cost"]["initial"]["mean"] and r["welch_p_initial_vs_last"] < 0.01]
     pooled = {label: float(np.mean([success(t) for cols in columns.values() for lab, ts in cols if lab == label
                                     for t in ts])) for label in labels}
-    say(f"lifting: {len(improved)}/{len(per_seed)} seeds improve with Welch p < 0.01; success "
+    say(f"lifting ({learner(sizes.lifting_interleave_every)}): {len(improved)}/{len(per_seed)} seeds improve with Welch p < 0.01; success "
         + ", ".join(f"{k} {100 * v:.0f} %" for k, v in pooled.items()))
-    return {"stages": labels, "per_seed": per_seed, "seeds_improved_p01": len(improved),
+    return {"stages": labels, "interleave_every": sizes.lifting_interleave_every,
+            "learner": learner(sizes.lifting_interleave_every), "per_seed": per_seed, "seeds_improved_p01": len(improved),
             "seeds": len(per_seed), "success_rate_pooled": pooled,
             "success_rate_last_per_seed": [r["success_rate"][last] for r in per_seed.values()]}

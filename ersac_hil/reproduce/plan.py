@@ -69,6 +69,10 @@ class Sizes:
     test_trials: int = 10
     context_episodes: int = 5
     grid: int = 51
+    #: the lifting runs' (and the contexts continuing them) learner option ``interleave_every``
+    #: (daemon ``--interleave-every``): 0, the paper's Algorithm 1; k > 0 interleaves an offline
+    #: search every k-th update (docs/learner.md, docs/reproduce.md)
+    lifting_interleave_every: int = 0
 
     def with_seeds(self, seeds: int | None) -> Sizes:
         """``seeds`` run seeds for bracing and lifting (``None``: unchanged)."""
@@ -106,7 +110,9 @@ def random_policy_trials(sizes: Sizes) -> list[TrialSpec]:
 
 def lifting_runs(sizes: Sizes) -> list[RunSpec]:
     """Risk-neutral lifting runs, run seed 1..n."""
-    return [RunSpec(f"lifting-k0-s{s}", "lifting", 0.0, s, sizes.lifting_episodes)
+    k = sizes.lifting_interleave_every
+    extra = ("--interleave-every", str(k)) if k else ()
+    return [RunSpec(f"lifting-k0-s{s}", "lifting", 0.0, s, sizes.lifting_episodes, extra)
             for s in range(1, sizes.lifting_seeds + 1)]
 
 

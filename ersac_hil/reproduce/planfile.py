@@ -7,13 +7,15 @@ learning run the fingerprint of the learner code that made it (``runs``; ``prove
 
 :func:`resolve` decides what a new invocation runs with, or refuses it (:class:`PlanConflict`):
 
-* Sizes. An invocation with no size option (neither ``--seeds`` nor ``--quick``) takes over
-  the sizes the directory recorded for the experiments it runs, and the fields they share with
+* Sizes. A field the invocation does not set explicitly (``--seeds`` and ``--quick`` set
+  every size; ``--lifting-interleave`` the lifting runs' learner option) is taken over from
+  what the directory recorded for the experiments it runs, and from the fields they share with
   a recorded experiment (contexts continue lifting's first run: ``lifting_episodes``,
-  ``test_trials``); what is not recorded gets the defaults. So ``reproduce bracing --seeds 3``
-  then ``reproduce all`` continues bracing with 3 seeds and runs lifting and contexts with
-  theirs. With a size option, every recorded value of a field it sets must agree: ``reproduce
-  all --seeds 5`` on a directory whose bracing has 3 seeds is refused.
+  ``test_trials``, ``lifting_interleave_every``); what is not recorded gets the defaults. So
+  ``reproduce bracing --seeds 3`` then ``reproduce all`` continues bracing with 3 seeds and runs
+  lifting and contexts with theirs. A recorded value of an explicitly set field must agree:
+  ``reproduce all --seeds 5`` on a directory whose bracing has 3 seeds is refused. A field
+  added after a directory was recorded reads as its :data:`LEGACY` value there.
 * Episode code: any change refuses the directory (its trials and runs came from the old code).
 * Learner code: a learning run of the invocation whose store exists and was made by other
   learner/critic code is refused (remove it to run it again: the trials stay and are reused);
@@ -32,15 +34,20 @@ from .plan import Sizes
 from .provenance import mismatch
 from .runner import RunSpec
 
-__all__ = ["FIELDS", "PlanConflict", "Resolved", "resolve", "runs_of"]
+__all__ = ["FIELDS", "INTERLEAVE", "LEGACY", "SIZE_FIELDS", "PlanConflict", "Resolved", "resolve", "runs_of"]
 
 #: The sizes each experiment uses (contexts: the lifting run it continues, its test trials).
 FIELDS: dict[str, tuple[str, ...]] = {
     "bracing": ("bracing_seeds", "bracing_episodes", "landscape_step", "landscape_episodes",
                 "random_policies", "fig1_after", "last_window", "grid"),
-    "lifting": ("lifting_seeds", "lifting_episodes", "lifting_stage", "test_trials"),
-    "contexts": ("lifting_episodes", "context_episodes", "test_trials"),
+    "lifting": ("lifting_seeds", "lifting_episodes", "lifting_stage", "test_trials", "lifting_interleave_every"),
+    "contexts": ("lifting_episodes", "context_episodes", "test_trials", "lifting_interleave_every"),
 }
+#: The field of the lifting runs' learner option (``--lifting-interleave``); the others are sizes.
+INTERLEAVE = "lifting_interleave_every"
+SIZE_FIELDS = frozenset(f for fs in FIELDS.values() for f in fs) - {INTERLEAVE}
+#: The value of a field in an experiment recorded before the field existed (what was run then).
+LEGACY: dict[str, Any] = {INTERLEAVE: 0}
 
 
 class PlanConflict(ValueError):
@@ -72,11 +79,15 @@ def _upgrade(recorded: Mapping[str, Any] | None) -> dict[str, Any]:
     if not recorded:
         return {"experiments": {}, "model": None, "runs": {}}
     if "experiments" in recorded:
-        return {"experiments": dict(recorded["experiments"]), "model": recorded.get("model"),
-                "runs": dict(recorded.get("runs", {}))}
-    old = recorded.get("sizes", {})
-    return {"experiments": {e: {f: old[f] for f in fs if f in old} for e, fs in FIELDS.items()},
-            "model": recorded.get("model"), "runs": {}}
+        experiments = {e: dict(v) for e, v in recorded["experiments"].items()}
+        runs = dict(recorded.get("runs", {}))
+    else:
+        old = recorded.get("sizes", {})
+        experiments = {e: {f: old[f] for f in fs if f in old} for e, fs in FIELDS.items()}
+        runs = {}
+    for e, values in experiments.items():
+        values.update({f: v for f, v in LEGACY.items() if f in FIELDS.get(e, ()) and f not in values})
+    return {"experiments": experiments, "model": recorded.get("model"), "runs": runs}
 
 
 def _json(value: Any) -> Any:
@@ -93,15 +104,15 @@ def _names(names: Sequence[str], sep: str = ", ") -> str:
 
 
 def resolve(recorded: Mapping[str, Any] | None, experiments: Sequence[str], requested: Sizes,
-            explicit: bool, model: Mapping[str, str], learning: Mapping[str, str],
+            explicit: Collection[str], model: Mapping[str, str], learning: Mapping[str, str],
             existing: Collection[str]) -> Resolved:
     """What ``experiments`` run with in a directory whose ``plan.json`` is ``recorded``.
 
     Args:
         recorded: the directory's ``plan.json`` (``None``: a new directory).
         experiments: the experiments of the invocation.
-        requested: the sizes of its options (the defaults, ``--quick``'s, with ``--seeds``).
-        explicit: a size option was given (else the recorded sizes are taken over).
+        requested: the sizes of its options (the defaults, ``--quick``'s, with ``--seeds``...).
+        explicit: the fields its options set (the others are taken over where recorded).
         model, learning: the current fingerprints of the episode and the learner code.
         existing: the names of the learning runs whose store exists.
 
@@ -120,13 +131,12 @@ def resolve(recorded: Mapping[str, Any] | None, experiments: Sequence[str], requ
             known.setdefault(f, (exp, v))
     values = _json(asdict(requested))
     used = [f for f in dict.fromkeys(f for e in experiments for f in FIELDS[e]) if f in known]
-    if explicit:
-        clash = [f"{known[f][0]} has {f} {known[f][1]} (asked {values[f]})" for f in used if known[f][1] != values[f]]
-        if clash:
-            raise PlanConflict(f"holds experiments made with other sizes: {_names(clash, '; ')}; run without "
-                               "--seeds/--quick to continue them with their sizes, or use another --out")
-    else:
-        values.update({f: known[f][1] for f in used})
+    clash = [f"{known[f][0]} has {f} {known[f][1]} (asked {values[f]})" for f in used
+             if f in explicit and known[f][1] != values[f]]
+    if clash:
+        raise PlanConflict(f"holds experiments made with other sizes: {_names(clash, '; ')}; run without "
+                           "--seeds/--quick/--lifting-interleave to continue them with theirs, or use another --out")
+    values.update({f: known[f][1] for f in used if f not in explicit})
     sizes = _sizes(values)
     quick = all(values[f] == _json(asdict(plan.QUICK))[f] for e in experiments for f in FIELDS[e])
     runs = [spec.name for e in experiments for spec in runs_of(e, sizes)]

@@ -134,7 +134,8 @@ def markdown(r: dict[str, Any]) -> str:
                   "", "Figures: bracing_landscape.png, bracing_runs.png, fig1_critic.png, fig2_critic.png."]
     lf = r.get("lifting")
     if lf:
-        lines += ["", "## Lifting (kappa 0)", "", "| run seed | " + " | ".join(
+        learner = lf.get("learner", "the paper's Algorithm 1")  # results written before the option
+        lines += ["", f"## Lifting (kappa 0, {learner})", "", "| run seed | " + " | ".join(
             f"{s}: mean +- std (success)" for s in lf["stages"]) + " | Welch p initial vs last |",
                   "|---|" + "---|" * (len(lf["stages"]) + 1)]
         for seed, ps in lf["per_seed"].items():

@@ -74,3 +74,24 @@ def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
             (run,) = store.runs()
             assert run.status == "finished" and len(store.ok_episodes(run.run_id)) == 6
             assert run.settings["eta"] == 0.7 and run.settings["sigma"] == [0.05]  # the paper's
+
+
+def test_quick_contexts_with_interleaved_lifting_runs_carry_the_option_to_every_daemon(tmp_path):
+    """``--lifting-interleave`` reaches the daemons of the lifting run and of the context runs
+    that continue it (stored with each run), and the plan records it."""
+    out = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "reproduce", "contexts", "--quick",
+                             "--lifting-interleave", "2", "--out", str(out)], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    with group_killed_on_exit(proc):
+        text, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, text
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["experiments"]["contexts"]["lifting_interleave_every"] == 2
+    dbs = sorted((out / "runs").glob("*.db"))
+    assert [p.stem for p in dbs] == ["context-energy_averse", "context-translation_averse", "lifting-k0-s1"]
+    for db in dbs:
+        with Store(db, readonly=True) as store:
+            (run,) = store.runs()
+            assert run.settings["interleave_every"] == 2 and run.status == "finished", db
+    assert not _ours(out)

@@ -3,8 +3,9 @@ directory, then ``all``), real conflicts are refused in one line with nothing wr
 learning run made by other learner code is refused while the trials stay reusable."""
 from __future__ import annotations
 
+import contextlib
 import json
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 
 import pytest
 from hypothesis import given, settings
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.cli import main
 from ersac_hil.reproduce.plan import FULL, QUICK, Sizes
-from ersac_hil.reproduce.planfile import FIELDS, PlanConflict, resolve, runs_of
+from ersac_hil.reproduce.planfile import FIELDS, INTERLEAVE, SIZE_FIELDS, PlanConflict, resolve, runs_of
 
 MODEL = {"firmware_sim": "a" * 16, "ersac_hil.agent": "b" * 16, "protocol.zenoh": "c" * 16}
 LEARN = {"ersac_hil.learner": "d" * 16, "ersac_hil.critic": "e" * 16, "ersac_hil.daemon.engine": "f" * 16}
@@ -20,7 +21,12 @@ ALL = ("bracing", "lifting", "contexts")
 
 
 def _run(record, experiments, sizes=FULL, explicit=False, learning=LEARN, existing=()):  # noqa: ANN001, ANN202
-    return resolve(record, experiments, sizes, explicit, MODEL, learning, set(existing))
+    """``explicit``: True for a size option (--seeds, --quick), else the fields set explicitly."""
+    fields_ = SIZE_FIELDS if explicit is True else (explicit or ())
+    return resolve(record, experiments, sizes, fields_, MODEL, learning, set(existing))
+
+
+_no_exit = contextlib.nullcontext
 
 
 def test_every_size_belongs_to_an_experiment():
@@ -65,7 +71,7 @@ def test_a_directory_with_one_size_set_is_read_as_every_experiments():
 def test_other_episode_code_is_refused():
     record = _run(None, ALL).record
     with pytest.raises(PlanConflict, match=r"other simulator/agent code \(changed: firmware_sim\)"):
-        resolve(record, ALL, FULL, False, {**MODEL, "firmware_sim": "0" * 16}, LEARN, set())
+        resolve(record, ALL, FULL, (), {**MODEL, "firmware_sim": "0" * 16}, LEARN, set())
 
 
 def test_learning_runs_of_other_learner_code_are_refused_and_the_rest_reused():
@@ -110,3 +116,36 @@ def test_the_cli_refuses_a_conflict_in_one_line_and_writes_nothing(tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert "bracing has bracing_seeds 3 (asked 4)" in err and "\n" not in err
     assert (out / "plan.json").read_text() == text and sorted(p.name for p in out.iterdir()) == ["plan.json"]
+
+
+def test_the_lifting_interleave_option_is_recorded_and_taken_over():
+    asked = replace(FULL, lifting_interleave_every=5)
+    first = _run(None, ("lifting",), asked, explicit={INTERLEAVE})
+    assert first.record["experiments"]["lifting"][INTERLEAVE] == 5
+    assert all(spec.extra == ("--interleave-every", "5") for spec in runs_of("lifting", first.sizes))
+    then = _run(first.record, ALL)  # `reproduce all`: lifting's and the contexts' option taken over
+    assert then.sizes.lifting_interleave_every == 5 and then.sizes.bracing_seeds == FULL.bracing_seeds
+    assert all(spec.extra == ("--interleave-every", "5") for spec in runs_of("contexts", then.sizes))
+    with pytest.raises(PlanConflict, match=r"lifting has lifting_interleave_every 5 \(asked 0\)"):
+        _run(then.record, ("contexts",), FULL, explicit={INTERLEAVE})
+    # a size option does not re-assert the learner option; the paper's runs carry no flag
+    assert _run(then.record, ("lifting",), FULL, explicit=True).sizes.lifting_interleave_every == 5
+    assert all(spec.extra == () for spec in runs_of("lifting", FULL))
+
+
+def test_an_experiment_recorded_before_the_option_reads_as_the_papers_algorithm():
+    record = _run(None, ALL, QUICK, explicit=True).record
+    for exp in ("lifting", "contexts"):
+        del record["experiments"][exp][INTERLEAVE]
+    assert _run(record, ALL).sizes.lifting_interleave_every == 0
+    with pytest.raises(PlanConflict, match=r"lifting_interleave_every 0 \(asked 3\)"):
+        _run(record, ("lifting",), replace(QUICK, lifting_interleave_every=3), explicit={INTERLEAVE})
+
+
+@pytest.mark.parametrize("bad", ["-1", "1001", "x"])
+def test_the_cli_refuses_a_bad_lifting_interleave_and_writes_nothing(tmp_path, capsys, bad):
+    out = tmp_path / "results"
+    with pytest.raises(SystemExit) if bad == "x" else _no_exit():
+        assert main(["reproduce", "lifting", "--lifting-interleave", bad, "--out", str(out)]) == 2
+    assert "--lifting-interleave" in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
