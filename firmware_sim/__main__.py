@@ -127,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"simulator: {request_realtime()}", flush=True)
     robot = SimulatedRobot(config, seed=args.seed, realtime=args.realtime,
                            control_period=args.control_period, substeps=args.substeps)
+    from protocol.can.realtime import quiet_gc
+    quiet_gc()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"simulator: {len(robot.nodes)} nodes on {config.describe()}, {mode}, "
           f"{1 / args.control_period:g} Hz", flush=True)

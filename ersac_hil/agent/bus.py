@@ -19,8 +19,9 @@ as fast as it can. Real-time: SYNC is paced by the wall clock at ``period_s``; a
 finishes after its slot counts as an overrun. Failures raise ``PdoTimeout``,
 ``HeartbeatLost`` or ``BusDown`` (``errors.py``); the caller decides what they end.
 
-Threads: the python-can Notifier thread runs the TPDO/heartbeat/EMCY callbacks (short, under
-one condition variable); ``cycle``/SDO calls come from one caller thread.
+Threads: the bus's receive thread (a python-can Notifier, or CAN over Zenoh's push delivery)
+runs the TPDO callbacks (``tpdos.TpdoCollector``) and the heartbeat/EMCY callbacks (short,
+under one condition variable); ``cycle``/SDO calls come from one caller thread.
 """
 from __future__ import annotations
 
@@ -38,7 +39,8 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeMissing,
                                     PdoTimeout, SdoTimeout)
-from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry, TelemetryDecoder
+from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands, Telemetry, TelemetryDecoder
+from ersac_hil.agent.tpdos import TpdoCollector
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
@@ -101,9 +103,8 @@ class AgentBus:
         self._tpdo_device: dict[int, str] = {}
         self._tpdo_keys: dict[int, tuple[tuple[int, int], ...]] = {}
         self._decoder: TelemetryDecoder | None = None
-        self._rpdos: list[tuple[str, int, object, tuple[tuple[int, int], ...]]] = []
-        self._pending: set[int] = set()
-        self._frames: dict[int, tuple[int, ...]] = {}
+        self._tpdos: TpdoCollector | None = None
+        self._encoder: CommandEncoder | None = None
         self.cycles = 0
         self.overruns = 0
         self._next_sync: float | None = None
@@ -116,6 +117,7 @@ class AgentBus:
         except (OSError, can.CanError, ValueError) as exc:
             raise BusDown(f"cannot open CAN bus {self.config.describe()}: {exc}") from exc
         net = self.network
+        rpdos, tpdos = [], {}
         for dev in self.devices:
             node = canopen.RemoteNode(dev.node_id, object_dictionary(dev))
             net.add_node(node)
@@ -130,12 +132,15 @@ class AgentBus:
                 if pdo_map.enabled and pdo_map.trans_type and 1 <= pdo_map.trans_type <= 240:
                     spec = specs[("tpdo", number)]
                     net.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
-                    net.subscribe(pdo_map.cob_id, self._tpdo_handler(pdo_map.cob_id, spec))
+                    tpdos[pdo_map.cob_id] = pdo_struct(spec)
                     self._tpdo_device[pdo_map.cob_id] = dev.name
                     self._tpdo_keys[pdo_map.cob_id] = spec.keys
             if dev in ACTUATED:
-                self._rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
-                                for n, m in node.rpdo.map.items() if m.enabled]
+                rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
+                          for n, m in node.rpdo.map.items() if m.enabled]
+        self._tpdos, self._encoder = TpdoCollector(tpdos), CommandEncoder(rpdos)
+        for cob_id in tpdos:
+            net.subscribe(cob_id, self._tpdos.handler(cob_id))
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
         return self
@@ -201,8 +206,9 @@ class AgentBus:
     def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
         """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
         now, timeout = time.monotonic(), self.timing.heartbeat_timeout_s
+        names = _CYCLIC_NAMES if devices is CYCLIC else [_name(dev) for dev in devices]
         with self._cond:
-            seen = [(_name(dev), self._hb_seen.get(_name(dev))) for dev in devices]
+            seen = [(name, self._hb_seen.get(name)) for name in names]
         for name, heard in seen:
             if heard is None or now - heard > timeout:
                 raise HeartbeatLost(name, None if heard is None else now - heard, timeout)
@@ -277,22 +283,6 @@ class AgentBus:
         return scale.from_raw(raw) if scale is not None else raw
 
     # -- the SYNC cycle ---------------------------------------------------------------------
-    def _tpdo_handler(self, cob_id: int, spec):  # noqa: ANN001, ANN202
-        layout = pdo_struct(spec)
-        unpack, size, cond, pending, frames = layout.unpack_from, layout.size, self._cond, self._pending, self._frames
-
-        def on_frame(can_id, data, timestamp) -> None:
-            if len(data) < size:
-                return
-            with cond:
-                if cob_id not in pending:
-                    return
-                frames[cob_id] = unpack(data)
-                pending.discard(cob_id)
-                if not pending:
-                    cond.notify_all()
-        return on_frame
-
     def reset_pacing(self) -> None:
         """Forget the real-time schedule (the next cycle starts a new one)."""
         self._next_sync = None
@@ -315,27 +305,16 @@ class AgentBus:
         with self._cond:
             self.cycles += 1
             cycle = self.cycles
-            self._pending.update(self._tpdo_device)
-            self._frames.clear()
-        commands = self._last_commands
-        frames = [(cob_id, layout.pack(*[raw[k] for k in keys]))
-                  for name, cob_id, layout, keys in self._rpdos for raw in (commands.raw(name),)]
+        tpdos = self._tpdos
+        tpdos.expect()  # type: ignore[union-attr]
+        frames = self._encoder.encode(self._last_commands)  # type: ignore[union-attr]
         frames.append((cobid.SYNC, b""))
         try:
             t0 = time.perf_counter()
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
-        deadline = t0 + self.timing.deadline_s
-        with self._cond:
-            while self._pending:
-                remaining = deadline - time.perf_counter()
-                if remaining <= 0:
-                    break
-                self._cond.wait(remaining)
-            missing = set(self._pending)
-            self._pending.clear()
-            frames = dict(self._frames)
+        received, missing = tpdos.wait(t0 + self.timing.deadline_s)  # type: ignore[union-attr]
         latency = time.perf_counter() - t0
         if missing:
             self._raise_if_bus_down()
@@ -346,7 +325,7 @@ class AgentBus:
         if self._decoder is None:
             self._decoder = TelemetryDecoder({cob_id: (self._tpdo_device[cob_id], self._tpdo_keys[cob_id])
                                               for cob_id in self._tpdo_device})
-        return self._decoder.decode(cycle, frames, latency)
+        return self._decoder.decode(cycle, received, latency)
 
     def _pace(self) -> None:
         now = time.perf_counter()
@@ -367,6 +346,9 @@ class AgentBus:
             self.net.check()
         except Exception as exc:
             raise BusDown(f"CAN receive thread stopped: {exc}") from exc
+
+
+_CYCLIC_NAMES = tuple(d.name for d in CYCLIC)
 
 
 @contextmanager

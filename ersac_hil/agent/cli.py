@@ -74,7 +74,9 @@ def _run(args: argparse.Namespace) -> int:
 
     class _Announcing:
         def start(self) -> None:
+            from protocol.can.realtime import quiet_gc
             service.start()
+            quiet_gc()
             print(f"agent ready: {service.keys.root} on {bus.describe()}", flush=True)
 
         def stop(self) -> None:

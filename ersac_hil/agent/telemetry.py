@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -62,20 +63,70 @@ class Commands:
 
     def raw(self, device: str) -> dict[tuple[int, int], int]:
         """RPDO values of ``device`` as raw counts by (index, sub-index)."""
+        return _RAW_OF[device](*self.inputs(device))
+
+    def inputs(self, device: str) -> tuple:
+        """The fields the RPDOs of ``device`` carry (``raw`` is a function of them alone)."""
         if device == WHEELS.name:
-            left, right = self.wheel_torque
-            return {(Index.TORQUE_COMMAND, 1): obj.TORQUE.to_raw(left),
-                    (Index.TORQUE_COMMAND, 2): obj.TORQUE.to_raw(right),
-                    (Index.CONTROL, 0): int(self.control)}
+            return self.wheel_torque, self.control
         if device == TORSO.name:
-            return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(self.torso_position),
-                    (Index.CONTROL, 0): int(self.control)}
-        if device in (ARM_LEFT.name, ARM_RIGHT.name):
-            shoulder, elbow = self.arm_left if device == ARM_LEFT.name else self.arm_right
-            return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(shoulder),
-                    (Index.POSITION_SETPOINT, 2): obj.POSITION.to_raw(elbow),
-                    (Index.CONTROL, 0): int(self.arm_control)}
+            return self.torso_position, self.control
+        if device == ARM_LEFT.name:
+            return self.arm_left, self.arm_control
+        if device == ARM_RIGHT.name:
+            return self.arm_right, self.arm_control
         raise KeyError(f"{device} takes no commands")
+
+
+def _wheels_raw(torque: tuple[float, float], control: Control) -> dict[tuple[int, int], int]:
+    left, right = torque
+    return {(Index.TORQUE_COMMAND, 1): obj.TORQUE.to_raw(left),
+            (Index.TORQUE_COMMAND, 2): obj.TORQUE.to_raw(right),
+            (Index.CONTROL, 0): int(control)}
+
+
+def _torso_raw(position: float, control: Control) -> dict[tuple[int, int], int]:
+    return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(position), (Index.CONTROL, 0): int(control)}
+
+
+def _arm_raw(pose: tuple[float, float], control: Control) -> dict[tuple[int, int], int]:
+    shoulder, elbow = pose
+    return {(Index.POSITION_SETPOINT, 1): obj.POSITION.to_raw(shoulder),
+            (Index.POSITION_SETPOINT, 2): obj.POSITION.to_raw(elbow),
+            (Index.CONTROL, 0): int(control)}
+
+
+_RAW_OF = {WHEELS.name: _wheels_raw, TORSO.name: _torso_raw, ARM_LEFT.name: _arm_raw, ARM_RIGHT.name: _arm_raw}
+
+
+class CommandEncoder:
+    """The RPDO frames of ``Commands``, compiled for one bus: per RPDO its struct and the
+    (index, sub-index) of each field. A device's frames are re-encoded only when its
+    ``Commands.inputs`` changed (the arms' and the torso's setpoints are the same cycle after
+    cycle); the bytes are those of ``Commands.raw`` packed, always.
+
+    Args:
+        rpdos: per RPDO in sending order: (device name, COB-ID, struct, field keys).
+    """
+
+    def __init__(self, rpdos: Sequence[tuple[str, int, Any, tuple[tuple[int, int], ...]]]) -> None:
+        self._devices: dict[str, list[tuple[int, Any, tuple[tuple[int, int], ...]]]] = {}
+        for name, cob_id, layout, keys in rpdos:
+            self._devices.setdefault(name, []).append((cob_id, layout, keys))
+        self._last: dict[str, tuple[tuple, list[tuple[int, bytes]]]] = {}
+
+    def encode(self, commands: Commands) -> list[tuple[int, bytes]]:
+        """``(COB-ID, data)`` of every RPDO, devices in the order given."""
+        frames: list[tuple[int, bytes]] = []
+        for name, rpdos in self._devices.items():
+            inputs = commands.inputs(name)
+            last = self._last.get(name)
+            if last is None or last[0] != inputs:
+                raw = commands.raw(name)
+                last = (inputs, [(cob_id, layout.pack(*[raw[k] for k in keys])) for cob_id, layout, keys in rpdos])
+                self._last[name] = last
+            frames += last[1]
+        return frames
 
 
 @dataclass(frozen=True)

@@ -345,20 +345,24 @@ class PushNotifier:
         """The frames of one sample, in order: ``on_frame`` listeners get data frames as
         ``(can_id, data, timestamp)``, the others a ``can.Message`` (one per frame, shared)."""
         channel = self.bus._name
+        # each listener's entry point, looked up once per sample: (on_frame, None) or (None, callback)
+        targets = [(on_frame, None) if on_frame is not None else
+                   (None, getattr(listener, "on_message_received", listener))
+                   for listener in self.listeners for on_frame in (getattr(listener, "on_frame", None),)]
         for frame in frames:
             if self._stopped or self.exception is not None:
                 return
             msg = None
+            data_frame = not frame[1] & (_ERROR | _REMOTE)
             try:
-                for listener in self.listeners:
-                    on_frame = getattr(listener, "on_frame", None)
+                for on_frame, callback in targets:
                     if on_frame is not None:
-                        if not frame[1] & (_ERROR | _REMOTE):
+                        if data_frame:
                             on_frame(frame[0], frame[3], timestamp)
                         continue
                     if msg is None:
                         msg = _message(frame, timestamp, channel)
-                    getattr(listener, "on_message_received", listener)(msg)
+                    callback(msg)
             except Exception as exc:  # noqa: BLE001 - kept for the owner, like can.Notifier
                 self._failed(exc)
 

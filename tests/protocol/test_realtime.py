@@ -72,3 +72,18 @@ def test_threads_ending_during_the_request_do_not_make_it_fail():
                          cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "0"
+
+
+def test_quiet_gc_freezes_start_up_and_collects_the_young_generation_rarely():
+    """In a process of its own (the collector's settings are per process)."""
+    code = ("import gc\n"
+            "from protocol.can.realtime import GC_YOUNG_THRESHOLD, quiet_gc\n"
+            "made = [[] for _ in range(1000)]\n"
+            "assert gc.get_threshold()[0] < GC_YOUNG_THRESHOLD\n"
+            "quiet_gc()\n"
+            "assert gc.get_threshold()[0] == GC_YOUNG_THRESHOLD and gc.get_freeze_count() >= 1000\n"
+            "a = []; a.append(a); del a\n"
+            "assert gc.collect() >= 1  # a cycle made later is still found\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
+    assert done.returncode == 0, done.stderr

@@ -94,3 +94,37 @@ def test_commands_encode_with_the_eds_factor(torque, torso, left, right):
             expected = var.encode_phys(value)
             lo, hi = -(1 << (len(var) - 1)), (1 << (len(var) - 1)) - 1  # saturation at the type
             assert count == min(max(expected, lo), hi), (dev.name, index, sub, value)
+
+
+def _rpdos() -> list:
+    from protocol.can.pdo import pdo_struct
+    return [(dev.name, p.cob_id, pdo_struct(p), p.keys) for dev in ACTUATED for p in pdo_maps(dev)
+            if p.direction == "rpdo"]
+
+
+@settings(max_examples=60)
+@given(st.lists(st.tuples(st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0)), st.sampled_from([0.0, 0.3]),
+                          st.sampled_from([(0.1, 0.2), (0.1, 0.25)]), st.sampled_from([(0.1, 0.2), (-0.5, 1.0)]),
+                          st.sampled_from([Control.ENABLE, Control.ENABLE | Control.START_SPLINE])),
+                min_size=1, max_size=6))
+def test_command_encoder_packs_what_raw_says_cycle_after_cycle(sequence):
+    """Re-used frames (unchanged setpoints) and re-encoded ones alike: the bytes of
+    ``Commands.raw`` packed into each RPDO's struct, in the bus's RPDO order."""
+    from ersac_hil.agent.telemetry import CommandEncoder
+    rpdos = _rpdos()
+    encoder = CommandEncoder(rpdos)
+    for torque, torso, left, right, arm_control in sequence:
+        commands = Commands(wheel_torque=torque, torso_position=torso, arm_left=left, arm_right=right,
+                            arm_control=arm_control)
+        expected = [(cob_id, layout.pack(*[commands.raw(name)[k] for k in keys]))
+                    for name, cob_id, layout, keys in rpdos]
+        assert encoder.encode(commands) == expected
+
+
+def test_command_encoder_refuses_nan_every_time():
+    from ersac_hil.agent.telemetry import CommandEncoder
+    encoder = CommandEncoder(_rpdos())
+    bad = Commands(arm_left=(float("nan"), 0.0))
+    for _ in range(2):  # a refused value is never remembered
+        with pytest.raises(ValueError):
+            encoder.encode(bad)
