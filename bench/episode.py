@@ -14,6 +14,8 @@ it. Backends:
   the agent (``ersac-hil agent``) as separate processes, as deployed;
 * ``zenoh``: CAN over Zenoh (``ersac_hil.canbus.zenoh_bus``) through the same embedded router
   the episode queries use, simulator and agent as separate processes;
+* ``direct``: CAN over Zenoh on a direct link (``ersac_hil.canbus.direct``, what ``ersac-hil
+  demo`` uses): the simulator's bus listens on a free loopback port, the agent's connects to it;
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
@@ -43,7 +45,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
-from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
+from ersac_hil.zenoh_session import EmbeddedRouter, free_tcp_port  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import EpisodeRequest, EpisodeResult, ErrorReply, KeySpace  # noqa: E402
 
@@ -102,18 +104,28 @@ def _ready(proc: subprocess.Popen, marker: str) -> str:
             return said
 
 
-def processes(config: BusConfig | None, n: int, realtime: bool,
+DIRECT = "direct"
+"""``processes``' config for CAN over Zenoh on a direct link (the simulator listens)."""
+
+
+def processes(config: BusConfig | str | None, n: int, realtime: bool,
               checkout: Path | None = None, python: str = sys.executable) -> dict[str, list[EpisodeResult]]:
-    """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router),
-    run by ``python`` from ``checkout`` (default: this one)."""
+    """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router;
+    ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's), run by ``python``
+    from ``checkout`` (default: this one)."""
     extra = ["--realtime"] if realtime else []
     procs = []
     try:
         with EmbeddedRouter() as router:
-            if config is None:
+            sim_bus = None
+            if config == DIRECT:
+                name, listen = f"bench-{uuid.uuid4().hex[:6]}", f"tcp/127.0.0.1:{free_tcp_port()}"
+                sim_bus = ["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}"]
+                config = BusConfig("zenoh", f"{name}@{listen}")
+            elif config is None:
                 config = BusConfig("zenoh", f"bench-{uuid.uuid4().hex[:6]}@{router.endpoint}")
             bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
-            sim = subprocess.Popen([python, "-m", "firmware_sim", *bus_args, *extra],
+            sim = subprocess.Popen([python, "-m", "firmware_sim", *(sim_bus or bus_args), *extra],
                                    stdout=subprocess.PIPE, text=True, cwd=checkout)
             procs.append(sim)
             scheduling = [_ready(sim, "simulator: ")]
@@ -161,7 +173,7 @@ def _on(bus: str, run):  # noqa: ANN001, ANN202
     if bus == "remote":
         with LoopbackHub() as hub:
             return run(hub.bus_config)
-    return run(None)
+    return run(DIRECT if bus == DIRECT else None)
 
 
 def compare(args: argparse.Namespace) -> int:
@@ -200,11 +212,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3, help="episodes per task and backend")
     parser.add_argument("--realtime", action="store_true", help="real-time mode (agent and simulator)")
-    parser.add_argument("--only", action="append", choices=("virtual", "remote", "zenoh"),
+    parser.add_argument("--only", action="append", choices=("virtual", "remote", "zenoh", DIRECT),
                         help="only these backends (repeatable; default all)")
     parser.add_argument("--baseline", type=Path, help="another checkout to run side by side")
     parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
-    parser.add_argument("--baseline-bus", choices=("zenoh", "remote"), default="zenoh")
+    parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT), default="zenoh")
     parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
     args = parser.parse_args()
     mode = "real-time" if args.realtime else "lock-step"
@@ -213,7 +225,7 @@ def main() -> int:
           f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
     if args.baseline is not None:
         return compare(args)
-    only = args.only or ("virtual", "remote", "zenoh")
+    only = args.only or ("virtual", "remote", "zenoh", DIRECT)
     if "virtual" in only:
         report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
                                      args.episodes, args.realtime))
@@ -222,6 +234,8 @@ def main() -> int:
             report("remote", processes(hub.bus_config, args.episodes, args.realtime))
     if "zenoh" in only:
         report("zenoh", processes(None, args.episodes, args.realtime))
+    if DIRECT in only:
+        report(DIRECT, processes(DIRECT, args.episodes, args.realtime))
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.only:
         return 0
