@@ -12,6 +12,10 @@ Files (the convention other tools rely on)::
 for role in ``router``, ``daemon``, ``agent``, ``operator``, ``observer``, ``simulator``. Use a config with
 ``--zenoh-config DIR/<role>.json5`` on any command. :func:`role_of_config` tells the role of
 a config file (the common name of its client certificate).
+
+With ``--robot NAME`` (repeatable) the robot side is issued per robot instead:
+``agent-NAME`` and ``simulator-NAME`` (files ``DIR/agent-NAME.*``...), each allowed only its
+robot's keys and CAN channel (``ersac_hil.roles``: per-robot identities).
 """
 from __future__ import annotations
 
@@ -31,10 +35,10 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from ersac_hil.roles import ROLES, access_control
+from ersac_hil.roles import ROLES, access_control, identities
 
-__all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "router_config", "client_config",
-           "register"]
+__all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "common_name", "router_config",
+           "client_config", "register"]
 
 DEFAULT_ROUTER = "tls/127.0.0.1:7447"
 #: Roles whose certificate also serves TLS listeners (the router; a simulator's direct CAN
@@ -129,16 +133,18 @@ def _tls(files: Path, **names: str) -> dict[str, Any]:
     return {"link": {"tls": {**tls, "enable_mtls": True}}}
 
 
-def router_config(files: Path, listen: Sequence[str], prefix: str = "ersac") -> dict[str, Any]:
+def router_config(files: Path, listen: Sequence[str], prefix: str = "ersac",
+                  robots: Sequence[str] = ()) -> dict[str, Any]:
     """The router's Zenoh config: TLS listeners with client certificates required, the
-    roles' access control. ``files`` is where the key/cert files are (on the router)."""
+    roles' access control (per-robot identities for ``robots``). ``files`` is where the
+    key/cert files are (on the router)."""
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "connect": {"endpoints": []},
         "scouting": _NO_SCOUTING,
         "transport": _tls(files, listen_private_key="router.key", listen_certificate="router.crt"),
-        "access_control": access_control(prefix),
+        "access_control": access_control(prefix, robots=robots),
     }
 
 
@@ -155,7 +161,7 @@ def client_config(role: str, files: Path, connect: Sequence[str]) -> dict[str, A
 
 def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER,),
                hosts: Sequence[str] = (), prefix: str = "ersac", install_dir: str | Path | None = None,
-               days: int = DEFAULT_DAYS, force: bool = False) -> CertSet:
+               days: int = DEFAULT_DAYS, force: bool = False, robots: Sequence[str] = ()) -> CertSet:
     """Create the CA, a key and certificate per role and a Zenoh json5 config per role.
 
     Args:
@@ -169,11 +175,14 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
             default: ``directory`` itself.
         days: validity of the certificates.
         force: overwrite an existing set.
+        robots: issue ``agent-<robot>`` and ``simulator-<robot>`` per robot instead of the
+            fleet-wide ``agent`` and ``simulator`` (``configs`` keyed by those names).
 
     Raises:
         CertError: an existing set without ``force``, a bad endpoint or argument.
     """
     from ersac_hil.zenoh_session import ZenohConfigError, check_endpoint, split_endpoint
+    from protocol.zenoh import KeySpace
 
     out = Path(directory)
     files = Path(install_dir) if install_dir is not None else out.resolve()
@@ -190,6 +199,13 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
         router_hosts.append(host)
     if not 1 <= days <= 36_500:
         raise CertError(f"days must be in 1..36500, got {days}")
+    for robot in robots:
+        try:
+            KeySpace(robot, prefix)
+        except ValueError as exc:
+            raise CertError(f"robot {robot!r}: {exc}") from None
+    if len(set(robots)) != len(robots):
+        raise CertError(f"robots named twice: {sorted(r for r in set(robots) if list(robots).count(r) > 1)}")
     if (out / "ca.crt").exists() and not force:
         raise CertError(f"{out} already holds a certificate set (ca.crt); use --force to replace it")
     out.mkdir(parents=True, exist_ok=True)
@@ -199,28 +215,30 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
     _write(out / "ca.crt", ca_cert.public_bytes(serialization.Encoding.PEM))
     names = list(dict.fromkeys([*router_hosts, *hosts, "localhost", "127.0.0.1"]))
     configs = {}
-    for role in ROLES:
+    for name, role, robot in identities(robots):
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = _issue(role, key, ca_key, ca_cert.subject, days, names if role in LISTENING_ROLES else ())
-        _write(out / f"{role}.key", _key_pem(key), private=True)
-        _write(out / f"{role}.crt", cert.public_bytes(serialization.Encoding.PEM))
+        cert = _issue(name, key, ca_key, ca_cert.subject, days, names if role in LISTENING_ROLES else ())
+        _write(out / f"{name}.key", _key_pem(key), private=True)
+        _write(out / f"{name}.crt", cert.public_bytes(serialization.Encoding.PEM))
         if role == "router":
-            config = router_config(files, router, prefix)
+            config = router_config(files, router, prefix, robots)
             comment = ("Zenoh router of ersac-hil: TLS with client certificates, access control by role.\n"
                        "ersac-hil router --zenoh-config router.json5")
         else:
-            config = client_config(role, files, router[:1])
-            comment = (f"Zenoh client config of the {role} role of ersac-hil.\n"
-                       f"ersac-hil <command> --zenoh-config {role}.json5")
-        path = out / f"{role}.json5"
+            config = client_config(name, files, router[:1])
+            whose = f" of robot {robot}" if robot else ""
+            comment = (f"Zenoh client config of the {role} role{whose} of ersac-hil.\n"
+                       f"ersac-hil <command> --zenoh-config {name}.json5")
+        path = out / f"{name}.json5"
         _write(path, _json5(comment, config))
-        configs[role] = path
+        configs[name] = path
     return CertSet(out, out / "ca.crt", configs)
 
 
 def role_of_config(path: str | Path) -> str | None:
-    """The role a Zenoh json5 config authenticates as: the common name of its client
+    """The identity a Zenoh json5 config authenticates as: the common name of its client
     certificate (``transport/link/tls/connect_certificate``; a router's listen certificate),
+    a role or a per-robot identity (``agent-ubot1``; ``ersac_hil.roles.parse_identity``),
     or ``None`` when it has no certificate (a plain loopback config).
 
     Raises:
@@ -241,10 +259,19 @@ def role_of_config(path: str | Path) -> str | None:
             break
     if not cert_path:
         return None
+    return common_name(cert_path, f" of {path}")
+
+
+def common_name(cert_path: str | Path, where: str = "") -> str | None:
+    """The common name of a PEM certificate file (``None`` if it has none).
+
+    Raises:
+        CertError: unreadable certificate (``where`` completes the message).
+    """
     try:
         cert = x509.load_pem_x509_certificate(Path(cert_path).read_bytes())
     except (OSError, ValueError) as exc:
-        raise CertError(f"cannot read certificate {cert_path} of {path}: {exc}") from None
+        raise CertError(f"cannot read certificate {cert_path}{where}: {exc}") from None
     names = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
     return str(names[0].value) if names else None
 
@@ -254,13 +281,13 @@ def _init(args: argparse.Namespace) -> int:
     try:
         made = init_certs(args.dir, router=args.router or (DEFAULT_ROUTER,), hosts=args.host or (),
                           prefix=args.prefix, install_dir=args.install_dir, days=args.days,
-                          force=args.force)
+                          force=args.force, robots=tuple(args.robot or ()))
     except (CertError, OSError) as exc:
         print(f"ersac-hil certs: {exc}", file=sys.stderr, flush=True)
         return 2
     print(f"CA and keys in {made.directory}; Zenoh configs:", flush=True)
-    for role, path in made.configs.items():
-        print(f"  {role:9s} {path}", flush=True)
+    for name, path in made.configs.items():
+        print(f"  {name:9s} {path}", flush=True)
     return 0
 
 
@@ -279,5 +306,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="where the files will live on the machines (paths in the configs; default DIR)")
     q.add_argument("--days", type=int, default=DEFAULT_DAYS, help=f"validity (default {DEFAULT_DAYS})")
     q.add_argument("--force", action="store_true", help="replace an existing set")
+    q.add_argument("--robot", action="append", metavar="NAME",
+                   help="issue agent-NAME and simulator-NAME, allowed only robot NAME's keys and CAN channel "
+                        "can/NAME, instead of the fleet-wide agent and simulator; repeatable")
     q.set_defaults(func=_init)
 

@@ -30,6 +30,13 @@ The CAN bus between an agent and its robot (CAN over Zenoh) is the one key space
 ``<prefix>/<robot>/``: ``can/<channel>``, sent and received by ``agent`` and ``simulator``
 (a simulated robot, or a gateway to a real one), by no other role.
 
+Per-robot identities (``certs init --robot ubot1 --robot ubot2``): instead of the fleet-wide
+``agent`` and ``simulator``, each robot gets ``agent-<robot>`` and ``simulator-<robot>``, with
+the same rules limited to that robot: ``<prefix>/<robot>/...`` and its CAN channel
+``can/<robot>``. A robot's certificate then cannot serve another robot's episodes, declare its
+tokens, or send or hear frames on its bus (a robot of a fleet that is lost or compromised
+speaks only for itself).
+
 Everything else is denied: a denied put is dropped, a denied query gets no reply, a denied
 queryable or liveliness token is declared locally but nothing is ever routed to it. So only
 the agent's identity can answer ``episode/run`` and only an operator can steer the learner.
@@ -38,9 +45,11 @@ the client sends, ``egress`` what the router delivers to it.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "access_control"]
+__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "ROBOT_ROLES", "identities",
+           "parse_identity", "access_control"]
 
 #: Every role; the certificate common name of a role is its name.
 ROLES: tuple[str, ...] = ("router", "daemon", "agent", "operator", "observer", "simulator")
@@ -124,35 +133,72 @@ CAN_ROLES: tuple[str, ...] = ("agent", "simulator")
 _CAN_MESSAGES = ("put", "declare_subscriber")
 
 
-def access_control(prefix: str = "ersac", robot: str = "*") -> dict[str, Any]:
+#: Roles issued per robot when a deployment names its robots (the robot side of the system).
+ROBOT_ROLES: tuple[str, ...] = ("agent", "simulator")
+
+
+def identities(robots: Sequence[str] = ()) -> list[tuple[str, str, str | None]]:
+    """``(common name, role, robot or None)`` of every identity of a deployment: the roles of
+    :data:`ROLES`, with :data:`ROBOT_ROLES` replaced by ``<role>-<robot>`` per robot if
+    ``robots`` are named."""
+    out: list[tuple[str, str, str | None]] = []
+    for role in ROLES:
+        if robots and role in ROBOT_ROLES:
+            out += [(f"{role}-{robot}", role, robot) for robot in robots]
+        else:
+            out.append((role, role, None))
+    return out
+
+
+def parse_identity(common_name: str) -> tuple[str, str | None]:
+    """``(role, robot or None)`` of a certificate common name (``agent``, ``simulator-ubot1``...).
+
+    Raises:
+        ValueError: a name that is no identity of a deployment.
+    """
+    if common_name in ROLES:
+        return common_name, None
+    role, sep, robot = common_name.partition("-")
+    if sep and role in ROBOT_ROLES and robot:
+        return role, robot
+    raise ValueError(f"{common_name!r} is no ersac-hil identity (roles: {', '.join(ROLES)}, or "
+                     f"{'/'.join(ROBOT_ROLES)}-<robot>)")
+
+
+def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str] = ()) -> dict[str, Any]:
     """The router's ``access_control`` section (Zenoh 1.10 schema) for the roles above.
 
     Args:
         prefix: the key prefix (one or more chunks).
-        robot: one robot's key chunk, or ``*`` for every robot under ``prefix``.
+        robot: one robot's key chunk, or ``*`` for every robot under ``prefix`` (the rules of
+            the fleet-wide roles).
+        robots: per-robot identities instead of the fleet-wide ``agent`` and ``simulator``
+            (see the module doc); empty: none.
     """
     rules, policies = [], []
-    for role, flows in PERMISSIONS.items():
+    for name, role, own in identities(robots):
+        chunk = robot if own is None else own
         ids = []
-        for flow, grants in flows.items():
+        for flow, grants in PERMISSIONS[role].items():
             for i, (messages, suffixes) in enumerate(grants):
-                rule_id = f"{role}-{flow}-{i}"
+                rule_id = f"{name}-{flow}-{i}"
                 rules.append({
                     "id": rule_id, "permission": "allow", "flows": [flow],
                     "messages": list(messages),
-                    "key_exprs": [f"{prefix}/{robot}/{suffix}" for suffix in suffixes],
+                    "key_exprs": [f"{prefix}/{chunk}/{suffix}" for suffix in suffixes],
                 })
                 ids.append(rule_id)
         if role in CAN_ROLES:
-            rules.append({"id": f"{role}-can", "permission": "allow", "flows": ["ingress", "egress"],
-                          "messages": list(_CAN_MESSAGES), "key_exprs": list(CAN_KEYS)})
-            ids.append(f"{role}-can")
+            rules.append({"id": f"{name}-can", "permission": "allow", "flows": ["ingress", "egress"],
+                          "messages": list(_CAN_MESSAGES),
+                          "key_exprs": list(CAN_KEYS) if own is None else [f"can/{own}"]})
+            ids.append(f"{name}-can")
         if ids:
-            policies.append({"id": f"{role}-policy", "rules": ids, "subjects": [role]})
+            policies.append({"id": f"{name}-policy", "rules": ids, "subjects": [name]})
     return {
         "enabled": True,
         "default_permission": "deny",
         "rules": rules,
-        "subjects": [{"id": role, "cert_common_names": [role]} for role in ROLES],
+        "subjects": [{"id": name, "cert_common_names": [name]} for name, _, _ in identities(robots)],
         "policies": policies,
     }

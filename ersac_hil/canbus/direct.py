@@ -12,8 +12,10 @@ The listener enforces what the router enforces for the CAN bus:
   must be ``tls/``; the role's certificate is the listener's (``certs init`` gives the
   simulator's the router's host names), client certificates are required (mTLS), and the
   router's access control (``ersac_hil.roles.access_control``, default deny) applies to every
-  link: only the ``agent`` and ``simulator`` roles may send and receive frames on ``can/**``.
-  A config file that sets its own ``access_control`` keeps it.
+  link: only the ``agent`` and ``simulator`` roles may send and receive frames on ``can/**``;
+  a per-robot listener identity (``simulator-ubot1``, ``certs init --robot ubot1``) admits only
+  its robot's identities, on ``can/ubot1``. A config file that sets its own ``access_control``
+  keeps it.
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from ersac_hil.roles import access_control
+from ersac_hil.roles import access_control, parse_identity
 from ersac_hil.zenoh_session import (SECURE_PROTOCOLS, ZenohConfigError, ZenohOptions, resolve_config,
                                      split_endpoint, zenoh_reason)
 
@@ -58,8 +60,22 @@ def listener_config(options: ZenohOptions, listen: Sequence[str], *,
                 _set(config, f"{_TLS}/listen_{what}", _get(config, f"{_TLS}/connect_{what}"))
         _set(config, f"{_TLS}/enable_mtls", True)
         if not _get(config, "access_control/enabled"):
-            _set(config, "access_control", access_control())
+            _set(config, "access_control", _listener_access(identity))
     return config
+
+
+def _listener_access(certificate: str) -> dict:
+    """The router's access control, for the robot of a per-robot listener identity only."""
+    from ersac_hil.certs import CertError, common_name
+    try:
+        name = common_name(certificate)
+    except CertError as exc:
+        raise ZenohConfigError(str(exc)) from None
+    try:
+        _, robot = parse_identity(name or "")
+    except ValueError:
+        robot = None  # a certificate of another CA's naming: the fleet-wide rules
+    return access_control(robots=(robot,) if robot else ())
 
 
 def _get(config: zenoh.Config, key: str):  # noqa: ANN202 - JSON value
