@@ -14,7 +14,9 @@ the same perturbations. ~40 s per run seed on this machine.
 
 Prints a line per run (test cost mean +- std, success rate), then per variant: seeds whose
 policy lifts in >= 90 % of the trials, pooled success rate, median test cost. A trial succeeds
-when its total cost is below ``SUCCESS_COST`` (a lift costs 3.5-7, a dropped bottle 35-48).
+as in ``reproduce lifting``: the bottle held (not dropped, robot not fallen) and at the goal
+height at the end (a stalled lift that holds the bottle below the goal costs as little as ~8,
+so the cost alone does not tell).
 With ``--out DIR``: ``lifting_learning.json`` and ``lifting_learning.png`` (test cost per seed
 and variant).
 
@@ -43,9 +45,10 @@ from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.daemon.config import TASK_DEFAULTS  # noqa: E402
 from ersac_hil.learner import CostWeights  # noqa: E402
 from ersac_hil.learner.ersac import ERSAC  # noqa: E402
+from ersac_hil.reproduce.lifting import GOAL_HEIGHT_M, GOAL_TOLERANCE_M  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
-from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
+from protocol.zenoh import EpisodeRequest, EpisodeResult, get_task  # noqa: E402
 
 #: learner options per variant name (``paper``: Algorithm 1, the daemon's default)
 VARIANTS: dict[str, dict[str, int]] = {
@@ -53,7 +56,6 @@ VARIANTS: dict[str, dict[str, int]] = {
     "interleave3": {"interleave_every": 3},
     "interleave5": {"interleave_every": 5},
 }
-SUCCESS_COST = 15.0
 LEARN_SEED, TEST_SEED = 700000, 605000
 RETRIES = 4
 
@@ -65,33 +67,48 @@ def _seeds(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
-def _episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: int) -> dict[str, float]:
-    """The cost terms of one lifting episode (re-run after a bus fault, which measures nothing)."""
+def _episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: int) -> EpisodeResult:
+    """One lifting episode (re-run after a bus fault, which measures nothing)."""
     for _ in range(RETRIES):
         result = runner.run(runner.plan(EpisodeRequest(
             f"b-{uuid.uuid4().hex[:8]}", "lifting", tuple(float(v) for v in theta), seed)))
         if result.status == "ok":
-            return dict(result.cost_terms)
+            return result
         bus.wait_for_nodes()
     raise RuntimeError(f"episode seed {seed}: {result.status} {RETRIES} times")
 
 
+def lifted(result: EpisodeResult) -> bool:
+    """The bottle held and at the goal height at the end (``reproduce lifting``'s success)."""
+    h = result.telemetry.get("final_bottle_height_m", float("nan"))
+    return (not result.failures.get("bottle_dropped") and not result.failures.get("fallen")
+            and abs(h - GOAL_HEIGHT_M) <= GOAL_TOLERANCE_M)
+
+
+def test_policy(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, trials: int,
+                weights: dict[str, float]) -> tuple[np.ndarray, float]:
+    """Test costs, shape (trials,), and success rate of ``theta`` on the test scenario seeds."""
+    spec = get_task("lifting")
+    results = [_episode(runner, bus, theta, TEST_SEED + t) for t in range(trials)]
+    return (np.array([spec.total_cost(r.cost_terms, weights) for r in results]),
+            float(np.mean([lifted(r) for r in results])))
+
+
 def learn_and_test(runner: EpisodeRunner, bus: AgentBus, variant: str, run_seed: int,
-                   episodes: int, trials: int) -> dict[str, object]:
+                   episodes: int, trials: int, theta0: np.ndarray) -> dict[str, object]:
     """One run: ``episodes`` learning episodes, then ``trials`` test costs (trials,) of its mean."""
     spec, d = get_task("lifting"), TASK_DEFAULTS["lifting"]
     weights = dict(spec.default_weights)
-    learner = ERSAC(np.array(d.theta0), np.array(d.sigma), d.eta, 0.0, d.epsilon,
+    learner = ERSAC(np.asarray(theta0, dtype=float), np.array(d.sigma), d.eta, 0.0, d.epsilon,
                     np.column_stack([spec.lower, spec.upper]), lr_range=d.lr_range, seed=run_seed,
                     weights=CostWeights(weights), **VARIANTS[variant])
     for i in range(episodes):
         x = learner.ask()
-        learner.tell(x, _episode(runner, bus, x, LEARN_SEED + 1000 * run_seed + i))
+        learner.tell(x, dict(_episode(runner, bus, x, LEARN_SEED + 1000 * run_seed + i).cost_terms))
     theta = learner.theta
-    costs = np.array([spec.total_cost(_episode(runner, bus, theta, TEST_SEED + t), weights)
-                      for t in range(trials)])
+    costs, success = test_policy(runner, bus, theta, trials, weights)
     return {"variant": variant, "seed": run_seed, "theta": theta.tolist(), "costs": costs.tolist(),
-            "success": float(np.mean(costs < SUCCESS_COST))}
+            "success": success}
 
 
 def _plot(runs: list[dict[str, object]], variants: list[str], path: Path) -> None:
@@ -104,7 +121,6 @@ def _plot(runs: list[dict[str, object]], variants: list[str], path: Path) -> Non
         xs = [r["seed"] + 0.25 * (k - (len(variants) - 1) / 2) for r in mine]
         ax.errorbar(xs, [np.mean(r["costs"]) for r in mine], [np.std(r["costs"]) for r in mine],
                     fmt="o", capsize=3, label=v)
-    ax.axhline(SUCCESS_COST, color="grey", lw=0.8, ls="--")
     ax.set_xlabel("run seed")
     ax.set_ylabel("test cost of the final policy (mean +- std)")
     ax.set_title("lifting: the policy after learning, per run seed")
@@ -121,12 +137,16 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"comma-separated, of {', '.join(VARIANTS)}")
     p.add_argument("--episodes", type=int, default=TASK_DEFAULTS["lifting"].episodes)
     p.add_argument("--trials", type=int, default=10)
+    p.add_argument("--theta0", type=lambda t: np.array([float(v) for v in t.split(",")]),
+                   default=np.array(TASK_DEFAULTS["lifting"].theta0),
+                   help="start policy, 7 comma-separated values (default: the daemon's)")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
     variants = args.variants.split(",")
     unknown = [v for v in variants if v not in VARIANTS]
-    if unknown or args.episodes < 1 or args.trials < 1:
-        p.error(f"unknown variant(s) {unknown}" if unknown else "--episodes and --trials must be >= 1")
+    if unknown or args.episodes < 1 or args.trials < 1 or args.theta0.shape != (7,):
+        p.error(f"unknown variant(s) {unknown}" if unknown
+                else "--episodes and --trials must be >= 1, --theta0 7 values")
     runs: list[dict[str, object]] = []
     total, start = len(variants) * len(args.seeds), time.monotonic()
     config = BusConfig("virtual", f"lifting-bench-{uuid.uuid4().hex[:8]}")
@@ -135,9 +155,11 @@ def main(argv: list[str] | None = None) -> int:
         try:
             bus.wait_for_nodes()
             runner = EpisodeRunner(bus)
+            c0, s0 = test_policy(runner, bus, args.theta0, args.trials, dict(get_task("lifting").default_weights))
+            print(f"start policy: test {c0.mean():.2f} +- {c0.std():.2f}, success {s0:.0%}", flush=True)
             for v in variants:
                 for s in args.seeds:
-                    run = learn_and_test(runner, bus, v, s, args.episodes, args.trials)
+                    run = learn_and_test(runner, bus, v, s, args.episodes, args.trials, args.theta0)
                     runs.append(run)
                     c = np.array(run["costs"])
                     print(f"[{len(runs)}/{total}] {v} seed {s}: test {c.mean():.2f} +- {c.std():.2f}, "

@@ -102,7 +102,8 @@ class GroundTruth:
     cable tensions (N, now and episode peak), bottle height of the shell centre and the
     shell+liquid centre of mass (m, NaN without a bottle), the drawn impact momentum (N s,
     NaN outside bracing) and launch time (s, NaN before), noise-free IMU values, the drawn
-    breaking tensions of this episode's elbow cables (N).
+    breaking tensions of this episode's elbow cables (N), the bottle's liquid mass (kg, NaN
+    without a bottle).
     """
 
     scenario: str
@@ -125,6 +126,7 @@ class GroundTruth:
     base_x: float
     cable_strength_left: float = float("nan")
     cable_strength_right: float = float("nan")
+    liquid_mass: float = float("nan")
 
 
 class _Rig:
@@ -196,12 +198,13 @@ class Simulator:
                        self._cable)
             self._rigs[scenario] = rig
         self._rig, self._seed = rig, int(seed)
-        # streams: scenario, IMU noise, cable strengths (spawn(3)[:2] == spawn(2): adding the
-        # cable stream left the scenario and IMU draws of every seed unchanged)
-        scenario_rng, imu_rng, cable_rng = (np.random.default_rng(s)
-                                            for s in np.random.SeedSequence(int(seed)).spawn(3))
+        # streams: scenario, IMU noise, cable strengths, load (spawn(4)[:3] == spawn(3): adding
+        # a stream leaves the earlier draws of every seed unchanged)
+        scenario_rng, imu_rng, cable_rng, load_rng = (np.random.default_rng(s)
+                                                      for s in np.random.SeedSequence(int(seed)).spawn(4))
         phys = rig.physics
         rig.cables.reset(cable_rng)                # restores the model fields it edits
+        rig.scenario.vary(phys, load_rng)
         phys.reset()
         rig.scenario.initialize_episode(phys, scenario_rng)
         rig.firmware.reset()
@@ -356,7 +359,8 @@ class Simulator:
             fallen=rig.falls.fallen, damaged=bool(cables.broken.any()),
             bottle_dropped=scen.bottle_dropped, pitch=imu.pitch, pitch_rate=imu.pitch_rate,
             pitch_acc=imu.pitch_acc, base_x=float(phys.data.xpos[phys.base_id][0]),
-            cable_strength_left=float(cables.strength[0]), cable_strength_right=float(cables.strength[1]))
+            cable_strength_left=float(cables.strength[0]), cable_strength_right=float(cables.strength[1]),
+            liquid_mass=scen.liquid_mass)
 
     # ---- boards ---------------------------------------------------------------------------
     def controller(self, name: str) -> MotorController:

@@ -90,7 +90,7 @@ class TaskDefaults(msgspec.Struct, frozen=True):
 TASK_DEFAULTS: dict[str, TaskDefaults] = {
     "bracing": TaskDefaults(theta0=(0.2,), sigma=(0.05,), eta=0.7, epsilon=0.2, lr_range=(0.01, 0.5),
                             episodes=45),
-    "lifting": TaskDefaults(theta0=(0.886, 0.733, 1.771, 0.517, 0.4, 0.4, 0.4), sigma=(0.075,) * 7,
+    "lifting": TaskDefaults(theta0=(0.886, 0.733, 1.771, 0.517, 0.72, 0.72, 0.72), sigma=(0.075,) * 7,
                             eta=0.5, epsilon=3.5 * 0.075, lr_range=(0.01, 0.5), episodes=30),
 }
 #: Sentinel values of ``resume``.

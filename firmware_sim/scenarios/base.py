@@ -6,6 +6,8 @@ Life cycle, driven by the Simulator:
 - ``prepare(physics)`` once after compiling: computes the balanced initial state
   ``initial_qpos`` (``qpos0`` stays the model's reference configuration: MuJoCo measures
   hinge angles from it);
+- ``vary(physics, load_rng)`` at every reset, before ``mj_resetData``: the episode's model
+  edits (the lifting bottle's fill), from a random stream of their own;
 - ``initialize_episode(physics, rng)`` at every reset, after ``mj_resetData``: sets the
   initial state and draws the episode's random quantities from ``rng`` (a generator spawned
   from the seed). Subclasses call ``super().initialize_episode``;
@@ -100,6 +102,11 @@ class Scenario:
     def prepare(self, physics: Physics) -> None:
         self.initial_qpos = balanced_qpos(physics, self.pose)
 
+    def vary(self, physics: Physics, rng: np.random.Generator) -> None:
+        """Called at every reset before ``mj_resetData`` with the seed's load stream (a stream
+        of its own, so the other draws of a seed do not depend on it): the episode's model
+        edits (a payload's mass), none here."""
+
     def initialize_episode(self, physics: Physics, rng: np.random.Generator) -> None:
         """Called after ``mj_resetData``: the balanced initial state, at rest."""
         physics.data.qpos[:] = self.initial_qpos
@@ -127,6 +134,10 @@ class Scenario:
         return False
 
     def bottle_height(self, physics: Physics) -> float:
+        return math.nan
+
+    @property
+    def liquid_mass(self) -> float:
         return math.nan
 
     def bottle_com(self, physics: Physics) -> np.ndarray:

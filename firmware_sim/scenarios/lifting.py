@@ -9,12 +9,26 @@
 - Grasp failure: after every substep the translational force in each weld is compared with
   the episode's grip limit; above it the grasp breaks (both welds released, the bottle falls):
   ``bottle_dropped``. A violent trajectory (large hand accelerations) drops the bottle.
-- Random per episode (the scenario seed): the grip limit. The bottle sits loosely in simple
-  claws, so how firmly it is held varies from trial to trial: normal around
-  ``grasp_force_limit`` with relative spread ``grip_spread``, kept within +-2.5 spreads. A
-  trajectory whose peak grasp force is near the nominal limit succeeds only part of the time.
-- Ground truth: the bottle's height (origin = shell centre) and the centre of mass of shell +
-  liquid, which moves with the slosh.
+- Torque-limited shoulders (the paper: "most arm trajectories fail (arm torque limits)"). On
+  this bench the shoulder drivers' hardware current limit is ``shoulder_current_limit``
+  (2.0 A: 8.3 N m at the joint instead of the 12 A / 49.7 N m of the bracing bench), and the
+  shoulder gear trains have Coulomb friction ``shoulder_friction`` (1.0 N m). Holding the
+  bottle with the arms near the horizontal needs ~7.5-8.5 N m per shoulder, so a slow,
+  quasi-static lift stalls near shoulder height, and only a swing that carries the bottle
+  through the horizontal with momentum gets it over (dynamic lifting). The friction holds a
+  stalled arm where it stopped (a current-limited motor gives no damping: without it a failed
+  swing rocks between 0.4 and 1.2 rad for the whole episode and can hit the floor with the
+  bottle), so a failed lift's height error is graded by how high the swing got.
+- Random per episode: the grip limit (the scenario stream) and the liquid fill (the load
+  stream, see ``vary``). The bottle sits loosely in simple claws, so how firmly it is held
+  varies from trial to trial: normal around ``grasp_force_limit`` with relative spread
+  ``grip_spread``, kept within +-2.5 spreads. The bottle is partially filled and the fill
+  varies between trials: the liquid's mass is normal around bottle.xml's 0.6 kg with
+  relative spread ``fill_spread``, within +-2.5 spreads (0.45-0.75 kg), which moves the
+  torque a lift needs by a few percent: a lift near the stall edge succeeds only part of the
+  time, and how often changes smoothly with its timing.
+- Ground truth: the bottle's height (origin = shell centre), the centre of mass of shell +
+  liquid, which moves with the slosh, and the liquid's mass.
 """
 from __future__ import annotations
 
@@ -29,7 +43,14 @@ from ..plant.physics import Physics
 from .base import Scenario, attach_props, balanced_qpos, robot_spec
 
 BOTTLE_XML = Path(__file__).with_name("bottle.xml")
+SHOULDERS = ("shoulder_left", "shoulder_right")
 GRASPS = (("grasp_left", "forearm_left"), ("grasp_right", "forearm_right"))
+
+
+def fill_factor(rng: np.random.Generator, spread: float) -> float:
+    """One episode's liquid mass relative to nominal: 1 + spread z, z standard normal within
+    +-2.5."""
+    return 1.0 + spread * float(np.clip(rng.standard_normal(), -2.5, 2.5))
 
 
 class Lifting(Scenario):
@@ -46,6 +67,12 @@ class Lifting(Scenario):
     smooth 3 s lift peaks near 10 N)."""
     grip_spread = 0.08
     """Relative standard deviation of the grip limit between episodes."""
+    shoulder_current_limit = 2.0
+    """A, hardware current limit of the shoulder drivers on this bench (module docstring)."""
+    shoulder_friction = 1.0
+    """N m, Coulomb friction of each shoulder's gear train (module docstring)."""
+    fill_spread = 0.1
+    """Relative standard deviation of the liquid's mass (bottle.xml: 0.6 kg) between episodes."""
 
     def build_spec(self) -> mujoco.MjSpec:
         spec = robot_spec()
@@ -55,10 +82,19 @@ class Lifting(Scenario):
                                    objtype=mujoco.mjtObj.mjOBJ_BODY, name1=hand, name2="bottle/shell")
             eq.solref = [0.005, 1.0]
             eq.active = False  # switched on in prepare(), once the relative poses are set
+        for name in SHOULDERS:
+            act = spec.actuator(name)
+            torque = float(act.gainprm[1]) * self.shoulder_current_limit
+            act.forcerange = [-torque, torque]
+            spec.joint(name).frictionloss = self.shoulder_friction
         return spec
 
     def prepare(self, physics: Physics) -> None:
         self._bottle = physics.body_id("bottle/shell")
+        self._liquid = physics.body_id("bottle/liquid")
+        self._liquid_mass0 = float(physics.model.body_mass[self._liquid])
+        self._liquid_inertia0 = physics.model.body_inertia[self._liquid].copy()
+        self._liquid_mass = self._liquid_mass0
         m = physics.model
         jid = m.body_jntadr[self._bottle]
         self._bottle_q = int(m.jnt_qposadr[jid])
@@ -96,6 +132,17 @@ class Lifting(Scenario):
         d.qpos[self._bottle_q:self._bottle_q + 3] = centre
         d.qpos[self._bottle_q + 3:self._bottle_q + 7] = (1.0, 0.0, 0.0, 0.0)
 
+    def vary(self, physics: Physics, rng: np.random.Generator) -> None:
+        """The episode's liquid fill from the load stream (its own stream of the seed, so the
+        grip limit and every other draw are unchanged): mass and inertia of the hidden liquid
+        scaled by ``fill_factor``, the model's derived constants recomputed."""
+        m = physics.model
+        scale = fill_factor(rng, self.fill_spread)
+        m.body_mass[self._liquid] = self._liquid_mass0 * scale
+        m.body_inertia[self._liquid] = self._liquid_inertia0 * scale
+        self._liquid_mass = float(m.body_mass[self._liquid])
+        mujoco.mj_setConst(m, physics.data)
+
     def initialize_episode(self, physics: Physics, rng: np.random.Generator) -> None:
         super().initialize_episode(physics, rng)
         z = np.clip(rng.standard_normal(), -2.5, 2.5)
@@ -124,6 +171,10 @@ class Lifting(Scenario):
     @property
     def bottle_dropped(self) -> bool:
         return self._dropped
+
+    @property
+    def liquid_mass(self) -> float:
+        return self._liquid_mass
 
     def bottle_height(self, physics: Physics) -> float:
         return float(physics.data.xpos[self._bottle][2])

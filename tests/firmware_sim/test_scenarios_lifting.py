@@ -1,12 +1,18 @@
 """Lifting: the bottle starts near the ground in a rigid two-handed grasp; a smooth arm spline
 lifts it to ~1.2 m while an LQR balances; a too-low spline misses the height; a violent one
-breaks the grasp; the hidden liquid moves the bottle's centre of mass."""
+breaks the grasp; the torque-limited shoulders stall a slow straight lift near shoulder height
+while the same path swung in 2 s gets over; the fill of the bottle varies per episode from a
+stream of its own; the hidden liquid moves the bottle's centre of mass."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from firmware_sim.plant.motors import read_motor_params
 from firmware_sim.scenarios import Lifting
+from firmware_sim.scenarios.lifting import fill_factor
 from firmware_sim.simulator import FailureKind, Simulator
 from helpers.plant import Balancer, balance_gain
 
@@ -20,10 +26,10 @@ def gains() -> np.ndarray:
 
 
 def lift(sim: Simulator, gains: np.ndarray, times, shoulder, elbow, seconds: float = 4.0,
-         stiffness: float = 150.0, damping: float = 5.0) -> dict:
+         stiffness: float = 150.0, damping: float = 5.0, seed: int = 0) -> dict:
     """Both arms follow the spline through (shoulder, elbow) knots (tangent-method knot
     velocities, zero at the ends) while the LQR balances."""
-    sim.reset("lifting", 0)
+    sim.reset("lifting", seed)
     for axis in ARM:
         sim.set_impedance(axis, stiffness, damping)
     t = np.asarray(times, dtype=float)
@@ -69,12 +75,79 @@ def test_too_low_spline_misses_the_height(sim, gains):
 
 def test_violent_lift_breaks_the_grasp(sim, gains):
     # seconds: the grip limit varies with the seed; a grasp that holds longer throws the bottle
-    # further, and it needs more than a second to land
+    # further, and it needs more than a second to land. The current-limited shoulders lag the
+    # 0.6 s spline: the arm swings over at ~5 rad/s and the grasp breaks as it brakes (~1.1 s)
     r = lift(sim, gains, [0.0, 0.3, 0.6], [START[0], 1.6, 3.1], [START[1], 1.8, 0.1], seconds=2.5)
     drops = [e for e in r["events"] if e.kind == FailureKind.BOTTLE_DROPPED]
-    assert len(drops) == 1 and drops[0].sim_time < 0.6
+    assert len(drops) == 1 and drops[0].sim_time < 1.2
     assert r["truth"].bottle_dropped and sim.status.bottle_dropped
     assert r["final"] < 0.15                       # it fell to the floor
+
+
+#: a straight line in joint space from the start to the goal pose (shoulder pi - 0.24 rad,
+#: elbow 0.3) through its midpoint, over ``duration`` seconds
+LINE = (np.array([START[0], 1.45, 2.9]), np.array([START[1], 0.62, 0.3]))
+
+
+def line_lift(sim: Simulator, gains: np.ndarray, duration: float, seed: int) -> dict:
+    return lift(sim, gains, [0.0, duration / 2, duration], *LINE, seconds=duration + 2.0, seed=seed)
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_slow_lift_stalls_near_shoulder_height(sim, gains, seed):
+    # quasi-static: the current-limited shoulders cannot hold the bottle near the horizontal
+    r = line_lift(sim, gains, 6.0, seed)
+    assert r["final"] < 0.75 and r["peak"] < 0.8    # the shoulders are 0.62 m above the floor
+    assert not r["truth"].bottle_dropped and not r["truth"].fallen
+    assert {e.axis for e in r["events"] if e.kind == FailureKind.OVER_CURRENT} >= {"shoulder_left",
+                                                                                  "shoulder_right"}
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_the_same_path_swung_in_two_seconds_gets_over(sim, gains, seed):
+    r = line_lift(sim, gains, 2.0, seed)
+    assert r["final"] == pytest.approx(Lifting.goal_height, abs=0.05)
+    assert not r["truth"].bottle_dropped and not r["truth"].fallen
+
+
+def test_shoulders_are_current_limited_on_the_lifting_bench_only(sim):
+    sim.reset("lifting", 0)
+    lifting = read_motor_params(sim.physics.model)["shoulder_left"]
+    sim.reset("bracing", 0)
+    bracing = read_motor_params(sim.physics.model)["shoulder_left"]
+    assert lifting.current_limit == pytest.approx(Lifting.shoulder_current_limit)
+    assert bracing.current_limit == pytest.approx(12.0)
+    assert lifting.torque_limit < 0.2 * bracing.torque_limit
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(min_value=0, max_value=2**32 - 1))
+def test_fill_is_drawn_from_its_own_stream_of_the_seed(sim, seed):
+    sim.reset("lifting", seed)
+    first = sim.truth.liquid_mass
+    streams = np.random.SeedSequence(seed).spawn(4)
+    assert first == 0.6 * fill_factor(np.random.default_rng(streams[3]), Lifting.fill_spread)
+    assert 0.6 * (1 - 2.5 * Lifting.fill_spread) <= first <= 0.6 * (1 + 2.5 * Lifting.fill_spread)
+    # the grip limit is still the first draw of the scenario stream, as before the fill existed
+    z = np.clip(np.random.default_rng(streams[0]).standard_normal(), -2.5, 2.5)
+    assert sim._require().scenario.grip_limit == Lifting.grasp_force_limit * (1 + Lifting.grip_spread * z)
+    sim.reset("bracing", seed)
+    assert np.isnan(sim.truth.liquid_mass)
+    sim.reset("lifting", seed)
+    assert sim.truth.liquid_mass == first           # a pure function of the seed
+    mass = sim.physics.model.body_mass[sim.physics.body_id("bottle/liquid")]
+    assert mass == first
+
+
+def test_fill_varies_between_episodes_around_the_nominal_mass(sim):
+    def fill(seed: int) -> float:
+        sim.reset("lifting", seed)
+        return sim.truth.liquid_mass
+
+    masses = np.array([fill(seed) for seed in range(40)]) / 0.6
+    spread = Lifting.fill_spread
+    assert abs(masses.mean() - 1.0) < 2.5 * spread / np.sqrt(40)
+    assert 0.5 * spread < masses.std() < 1.5 * spread
 
 
 def test_grip_limit_varies_between_episodes_around_the_nominal_limit(sim):

@@ -94,10 +94,11 @@ def test_a_task_the_agent_does_not_serve_is_refused_before_anything_moves(rig):
 
 
 def test_a_dropped_bottle_is_no_longer_balanced_for(rig):
-    # a quick lift whose grasp breaks early: while the balance reference kept counting the
-    # 1 kg bottle the robot leaned after it and fell (4 of 4 seeds); now it stays up
+    # a quick elbow whip whose grasp breaks early (the current-limited shoulders no longer
+    # swing fast enough to break it): while the balance reference kept counting the 1 kg
+    # bottle the robot leaned after it and fell; now it stays up
     _, _, runner = rig
-    r = run(runner, "lifting", (0.936, 0.694, 1.647, 0.53, 0.408, 0.308, 0.349), seed=0)
+    r = run(runner, "lifting", (0.3, 2.2, 1.8, 0.6, 0.2, 0.3, 0.4), seed=0)
     assert r.status == "ok" and r.failed("bottle_dropped") and not r.failed("fallen")
     assert r.duration_s == pytest.approx(6.0) and "goal" not in r.detail  # no goal without the bottle
     assert r.cost_terms["h_error_sq"] > 400.0  # dm^2 s: the bottle lies on the floor for seconds
