@@ -34,7 +34,7 @@ from ersac_hil.agent.bus import AgentBus  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.daemon.config import TASK_DEFAULTS  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
-from lifting_learning import TEST_SEED, _episode, lifted  # noqa: E402
+from lifting_learning import TEST_SEED, lifted, run_episode  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import get_task  # noqa: E402
 
@@ -51,7 +51,7 @@ def point(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, trials: int) 
     """Cost (trials,), success, drop rate and stall height of ``theta`` on the test seeds."""
     spec = get_task("lifting")
     weights = dict(spec.default_weights)
-    results = [_episode(runner, bus, theta, TEST_SEED + t) for t in range(trials)]
+    results = [run_episode(runner, bus, theta, TEST_SEED + t) for t in range(trials)]
     costs = np.array([spec.total_cost(r.cost_terms, weights) for r in results])
     ok = np.array([lifted(r) for r in results])
     dropped = np.array([bool(r.failures.get("bottle_dropped")) for r in results])

@@ -67,7 +67,7 @@ def _seeds(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
-def _episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: int) -> EpisodeResult:
+def run_episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: int) -> EpisodeResult:
     """One lifting episode (re-run after a bus fault, which measures nothing)."""
     for _ in range(RETRIES):
         result = runner.run(runner.plan(EpisodeRequest(
@@ -89,7 +89,7 @@ def test_policy(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, trials:
                 weights: dict[str, float]) -> tuple[np.ndarray, float]:
     """Test costs, shape (trials,), and success rate of ``theta`` on the test scenario seeds."""
     spec = get_task("lifting")
-    results = [_episode(runner, bus, theta, TEST_SEED + t) for t in range(trials)]
+    results = [run_episode(runner, bus, theta, TEST_SEED + t) for t in range(trials)]
     return (np.array([spec.total_cost(r.cost_terms, weights) for r in results]),
             float(np.mean([lifted(r) for r in results])))
 
@@ -104,7 +104,7 @@ def learn_and_test(runner: EpisodeRunner, bus: AgentBus, variant: str, run_seed:
                     weights=CostWeights(weights), **VARIANTS[variant])
     for i in range(episodes):
         x = learner.ask()
-        learner.tell(x, dict(_episode(runner, bus, x, LEARN_SEED + 1000 * run_seed + i).cost_terms))
+        learner.tell(x, dict(run_episode(runner, bus, x, LEARN_SEED + 1000 * run_seed + i).cost_terms))
     theta = learner.theta
     costs, success = test_policy(runner, bus, theta, trials, weights)
     return {"variant": variant, "seed": run_seed, "theta": theta.tolist(), "costs": costs.tolist(),

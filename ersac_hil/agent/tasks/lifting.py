@@ -31,8 +31,10 @@ without units. In metres the height error is ~4 % of a lift's cost and a lift th
 bottle out of the claws at once, then swings the empty arms, costs *less* than one that lifts
 it (measured: 0.84 against 1.0-1.4; a risk-neutral learner found that basin). With lengths in
 decimetres (angles in rad, energy in J) a dropped bottle costs ~38-40 against ~4.6 for a lift
-(the height error dominates, energy and balance ~1), falls ~44-46, and the fastest lift that
-rarely drops the bottle is the optimum: the paper's timing trade-off (docs/agent.md).
+(the height error dominates, energy and balance ~1), falls ~44-46, and a lift that the
+torque-limited shoulders stall below the goal ~8-19, the lower the dearer: the optimum is a
+swing fast enough to get over and not so violent that it drops the bottle, the paper's timing
+trade-off (docs/agent.md).
 """
 from __future__ import annotations
 
