@@ -34,7 +34,7 @@ from ersac_hil.agent.bus import AgentBus  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.daemon.config import TASK_DEFAULTS  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
-from lifting_learning import TEST_SEED, lifted, run_episode  # noqa: E402
+from lifting_learning import TEST_SEED, lifted, run_episode, theta_arg  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import get_task  # noqa: E402
 
@@ -84,11 +84,10 @@ def _plot(points: list[dict[str, object]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scales", type=lambda t: [float(v) for v in t.split(",")],
+    p.add_argument("--scales", type=lambda t: theta_arg(t).tolist(),
                    default=[0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.2, 1.4, 1.7, 2.0])
     p.add_argument("--trials", type=int, default=10)
-    p.add_argument("--theta0", type=lambda t: np.array([float(v) for v in t.split(",")]),
-                   default=np.array(TASK_DEFAULTS["lifting"].theta0))
+    p.add_argument("--theta0", type=theta_arg, default=np.array(TASK_DEFAULTS["lifting"].theta0))
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
     if args.trials < 1 or args.theta0.shape != (7,) or min(args.scales) <= 0:

@@ -67,6 +67,11 @@ def _seeds(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
+def theta_arg(text: str) -> np.ndarray:
+    """A policy from the command line: comma-separated values, shape (n,)."""
+    return np.array([float(v) for v in text.split(",")])
+
+
 def run_episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: int) -> EpisodeResult:
     """One lifting episode (re-run after a bus fault, which measures nothing)."""
     for _ in range(RETRIES):
@@ -137,8 +142,7 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"comma-separated, of {', '.join(VARIANTS)}")
     p.add_argument("--episodes", type=int, default=TASK_DEFAULTS["lifting"].episodes)
     p.add_argument("--trials", type=int, default=10)
-    p.add_argument("--theta0", type=lambda t: np.array([float(v) for v in t.split(",")]),
-                   default=np.array(TASK_DEFAULTS["lifting"].theta0),
+    p.add_argument("--theta0", type=theta_arg, default=np.array(TASK_DEFAULTS["lifting"].theta0),
                    help="start policy, 7 comma-separated values (default: the daemon's)")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
