@@ -39,7 +39,7 @@ from protocol.zenoh import EpisodeRequest  # noqa: E402
 INTEREST = [
     ("physics: Simulator.step", r"^Simulator\.step \("),
     ("sim: SYNC handler total", r"^SimulatedRobot\._on_sync \("),
-    ("sim: TPDO sampling + send", r"^SlaveNode\.transmit_tpdos \("),
+    ("sim: TPDO sampling (one sampler)", r"^TpdoSampler\.pack \("),
     ("agent: AgentBus.cycle", r"^AgentBus\.cycle \("),
     ("agent: episode loop", r"^EpisodeRunner\._loop \("),
     ("agent: LQR torque", r"^BalanceController\.torque \("),

@@ -21,6 +21,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import canopen
 from canopen.nmt import NMT_COMMANDS, NmtSlave
@@ -44,6 +45,19 @@ def _getter(keys: tuple[Key, ...]) -> Callable[[dict[Key, int]], tuple[int, ...]
     """The values of ``keys`` from a dict as a tuple (``operator.itemgetter``, always a tuple)."""
     get = operator.itemgetter(*keys)
     return get if len(keys) > 1 else (lambda values: (get(values),))
+
+
+@dataclass(frozen=True)
+class TpdoLayout:
+    """One synchronous TPDO of a node: its COB-ID, sent every ``every``-th SYNC (the
+    transmission type 1..240), packed by ``layout`` from the objects ``keys`` (in frame order);
+    ``values_of`` picks those objects' values from a dict keyed like ``keys``."""
+
+    cob_id: int
+    every: int
+    layout: struct.Struct
+    keys: tuple[Key, ...]
+    values_of: Callable[[dict[Key, int]], tuple[int, ...]]
 
 
 class NodeApplication:
@@ -125,7 +139,8 @@ class SlaveNode(canopen.LocalNode):
 
     With ``own_sync=True`` the node reacts to SYNC itself (apply commands, sample, send);
     a simulator that steps physics between those two calls passes ``False`` and calls
-    ``apply_commands()`` / ``transmit_tpdos()`` from its own SYNC handler.
+    ``apply_commands()`` and ``due_tpdos()`` from its own SYNC handler (packing the due
+    TPDOs of all its nodes from one sample).
     """
 
     def __init__(self, device: Device, app: NodeApplication | None = None, *, own_sync: bool = True) -> None:
@@ -144,7 +159,7 @@ class SlaveNode(canopen.LocalNode):
         self._agent_last_hb: float | None = None
         self._hb_lost = False
         self.sync_count = 0
-        self._layouts: list[tuple[int, int, struct.Struct, tuple[Key, ...], Callable[[dict], tuple]]] = []
+        self._layouts: list[TpdoLayout] = []
         self._rpdo_handlers: list[tuple[int, object]] = []
         self.app.attach(self)
 
@@ -161,7 +176,7 @@ class SlaveNode(canopen.LocalNode):
                 handler = self._rpdo_handler(specs[("rpdo", number)])
                 network.subscribe(pdo_map.cob_id, handler)
                 self._rpdo_handlers.append((pdo_map.cob_id, handler))
-        self._layouts = [(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, _getter(spec.keys))
+        self._layouts = [TpdoLayout(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, _getter(spec.keys))
                          for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
                          if m.enabled and 1 <= (m.trans_type or 0) <= 240]
         network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
@@ -271,30 +286,39 @@ class SlaveNode(canopen.LocalNode):
         if changed:
             self.app.on_commands(changed)
 
-    def transmit_tpdos(self, out: list[tuple[int, bytes]] | None = None) -> None:
-        """Sample the application and send every synchronous TPDO (operational only); with
-        ``out``, append ``(COB-ID, data)`` to it instead (the caller sends them as a burst).
-        A node taken off the bus (``close``) sends nothing."""
+    @property
+    def tpdo_layouts(self) -> tuple[TpdoLayout, ...]:
+        """The node's synchronous TPDOs (after ``connect``), in transmission order."""
+        return tuple(self._layouts)
+
+    def due_tpdos(self) -> list[TpdoLayout]:
+        """Count this SYNC and return the synchronous TPDOs due at it: none unless operational
+        and on the bus (a node taken off the bus by ``close`` sends nothing)."""
         if self.nmt._state != OPERATIONAL or not self.has_network():
-            return
+            return []
         self.sync_count += 1
         count = self.sync_count
-        due = [layout for layout in self._layouts if count % layout[1] == 0]
+        return [layout for layout in self._layouts if count % layout.every == 0]
+
+    def transmit_tpdos(self) -> None:
+        """Sample the application and send every synchronous TPDO due at this SYNC from the
+        node's values (a simulated robot samples all its nodes at once instead:
+        ``firmware_sim.nodes.sampler``)."""
+        due = self.due_tpdos()
         if not due:
             return
-        frames: list[tuple[int, bytes]] = [] if out is None else out
+        frames: list[tuple[int, bytes]] = []
         with self._lock:
             self.app.sample()
             values = self._values
-            for cob_id, _, layout, keys, values_of in due:
+            for tpdo in due:
                 try:
-                    data = layout.pack(*values_of(values))
+                    data = tpdo.layout.pack(*tpdo.values_of(values))
                 except KeyError:  # an object the application never set: stored data / EDS default
-                    data = layout.pack(*[int(self.value(*k)) for k in keys])
-                frames.append((cob_id, data))
-        if out is None:
-            for cob_id, data in frames:
-                self.network.send_message(cob_id, data)
+                    data = tpdo.layout.pack(*[int(self.value(*k)) for k in tpdo.keys])
+                frames.append((tpdo.cob_id, data))
+        for cob_id, data in frames:
+            self.network.send_message(cob_id, data)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         self.apply_commands()

@@ -17,7 +17,7 @@ import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from firmware_sim.controllers import ConfigRangeError, ConfigStateError, JointController
-from firmware_sim.plant import AXES
+from firmware_sim.plant import AXES, ImuSample
 from firmware_sim.nodes.base import Key, NodeApplication
 from firmware_sim.simulator import Simulator
 from protocol.can import objects as o
@@ -56,16 +56,32 @@ def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
     return missing if math.isnan(value) else scale.to_raw(value)
 
 
+_IMU_INDEXES = (Index.PITCH, Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
+                Index.ACCELERATION_Z)
+_IMU_SCALES = (o.PITCH, o.PITCH_RATE, o.PITCH_ACCELERATION, o.ACCELERATION, o.ACCELERATION)
+IMU_SLOT = len(_AXIS_INDEXES) * len(AXES)
+"""Where the IMU's counts start in a telemetry row (after the axes' counts)."""
+STATUS_SLOT = IMU_SLOT + len(_IMU_INDEXES)
+"""The slot of a telemetry row that holds the sampling device's status word (the last)."""
+
+
+def axis_slot(index: int, axis: int) -> int:
+    """Slot of an axis telemetry object (``index`` in ``_AXIS_INDEXES``) of axis number
+    ``axis`` in a telemetry row."""
+    return _AXIS_INDEXES.index(index) * len(AXES) + axis
+
+
 @dataclass(frozen=True)
 class AxisCounts:
     """Raw telemetry of every axis at one instant, what the boards' TPDOs carry.
 
     Attributes:
-        counts: position, velocity, current and voltage counts (``Scale.to_raw`` of each
-            value, computed for all axes at once), 4 lists of 7 ints in ``AXES`` order.
+        values: position, velocity, current and voltage counts (``Scale.to_raw`` of each
+            value, computed for all axes at once), 28 ints: shape (4, 7) row-major, rows
+            ``_AXIS_INDEXES``, columns ``AXES`` (``axis_slot`` gives the place of one).
         words: status-word bits of each axis's board flags, 7 ints (a board ORs its axes').
     """
-    counts: tuple[list[int], ...]
+    values: list[int]
     words: list[int]
 
     @classmethod
@@ -75,10 +91,10 @@ class AxisCounts:
         return cls(axis_counts(np.array(sim.axis_arrays())), _WORD_OF[packed].tolist())
 
 
-def axis_counts(values: np.ndarray) -> tuple[list[int], ...]:
+def axis_counts(values: np.ndarray) -> list[int]:
     """``Scale.to_raw`` of every axis value at once: ``values`` shape (4, 7), rows
-    ``_AXIS_INDEXES``, columns ``AXES``, SI units (overwritten). Bit for bit what ``to_raw``
-    gives each value, ``ValueError`` on a NaN like it."""
+    ``_AXIS_INDEXES``, columns ``AXES``, SI units (overwritten); returned row-major, 28 ints.
+    Bit for bit what ``to_raw`` gives each value, ``ValueError`` on a NaN like it."""
     np.divide(values, _FACTOR, out=values)                  # the same division as to_raw
     if math.isnan(values.min()):                            # min propagates a NaN
         raise ValueError("cannot encode NaN")
@@ -86,7 +102,15 @@ def axis_counts(values: np.ndarray) -> tuple[list[int], ...]:
     np.rint(values, out=values)
     np.maximum(values, _RAW_MIN, out=values)
     np.minimum(values, _RAW_MAX, out=values)
-    return tuple(values.astype(np.int64).tolist())
+    return values.astype(np.int64).ravel().tolist()
+
+
+def telemetry_row(axes: AxisCounts, imu: ImuSample) -> list[int]:
+    """Every telemetry count of the robot at one instant: the axes' counts, the IMU's
+    (``_IMU_INDEXES`` order, from ``IMU_SLOT``) and a slot for a status word (``STATUS_SLOT``,
+    0 here; the sampling device writes its own), 34 ints."""
+    return [*axes.values, *(scale.to_raw(v) for scale, v in zip(_IMU_SCALES, (
+        imu.pitch, imu.pitch_rate, imu.pitch_acc, imu.acc_x, imu.acc_z))), 0]
 
 
 class Host(Protocol):
@@ -103,6 +127,9 @@ class Host(Protocol):
     def axis_counts(self) -> AxisCounts:
         """The raw axis telemetry of the present state (computed once per SYNC for all nodes)."""
 
+    def telemetry(self) -> list[int]:
+        """The robot's telemetry row of the present state (``telemetry_row``)."""
+
 
 class DeviceApp(NodeApplication):
     """Common behaviour: enable with NMT OPERATIONAL + control word ENABLE, safe state on
@@ -111,8 +138,10 @@ class DeviceApp(NodeApplication):
     def __init__(self, host: Host, device: Device) -> None:
         self.host, self.device = host, device
         self._axis_idx = [AXES.index(j) for j in device.joints]
-        self._axis_keys = tuple((index, sub) for index in _AXIS_INDEXES
-                                for sub in range(1, len(device.joints) + 1))
+        self.slots: dict[Key, int] = {(Index.STATUS, 0): STATUS_SLOT, **{
+            (index, sub): axis_slot(index, axis) for index in _AXIS_INDEXES
+            for sub, axis in enumerate(self._axis_idx, start=1)}}
+        """Slot in the telemetry row (``telemetry_row``) of every object the device samples."""
         self.control = Control(0)
         self.safe = False
         self.operational = False
@@ -168,15 +197,11 @@ class DeviceApp(NodeApplication):
         return s | _FAULT if s & _FAULTS else s
 
     def sample(self) -> None:
-        """Status word and, for a board, the counts of its axes into the node's values."""
-        if not self._axis_idx:
-            self.node.set_value(Index.STATUS, 0, self.status_word(None))
-            return
-        axes = self.host.axis_counts()
-        values = self.node.values
-        values[(Index.STATUS, 0)] = self.status_word(axes)
-        idx = self._axis_idx
-        values.update(zip(self._axis_keys, [row[i] for row in axes.counts for i in idx]))
+        """The device's telemetry (``slots``) of the present state into the node's values
+        (what an SDO upload of a telemetry object reads)."""
+        row = self.host.telemetry()
+        row[STATUS_SLOT] = self.status_word(self.host.axis_counts() if self._axis_idx else None)
+        self.node.values.update((key, row[slot]) for key, slot in self.slots.items())
 
     def on_config(self, key: Key, value) -> None:
         try:
@@ -297,14 +322,9 @@ class ImuApp(DeviceApp):
     def status_word(self, axes: AxisCounts | None) -> int:
         return super().status_word(axes) | (_FALLEN if self.host.sim.fallen else 0)
 
-    def sample(self) -> None:
-        imu = self.host.sim.imu()
-        self.node.values.update((
-            ((Index.PITCH, 0), o.PITCH.to_raw(imu.pitch)), ((Index.PITCH_RATE, 0), o.PITCH_RATE.to_raw(imu.pitch_rate)),
-            ((Index.PITCH_ACCELERATION, 0), o.PITCH_ACCELERATION.to_raw(imu.pitch_acc)),
-            ((Index.ACCELERATION_X, 0), o.ACCELERATION.to_raw(imu.acc_x)),
-            ((Index.ACCELERATION_Z, 0), o.ACCELERATION.to_raw(imu.acc_z)),
-            ((Index.STATUS, 0), self.status_word(None))))
+    def __init__(self, host: Host, device: Device) -> None:
+        super().__init__(host, device)
+        self.slots.update({(index, 0): IMU_SLOT + k for k, index in enumerate(_IMU_INDEXES)})
 
 
 class TestBenchApp(DeviceApp):

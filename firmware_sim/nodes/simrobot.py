@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 
 from firmware_sim.nodes.base import SlaveNode
-from firmware_sim.nodes.devices import APPS, AxisCounts
+from firmware_sim.nodes.devices import APPS, AxisCounts, telemetry_row
+from firmware_sim.nodes.sampler import TpdoSampler
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, Device
@@ -58,8 +59,8 @@ class SimulatedRobot:
             self.nodes[d.name] = SlaveNode(d, APPS[d.name](self, d), own_sync=False)
         for node in self.nodes.values():
             node.connect(self.network)
+        self._sampler = TpdoSampler(tuple(self.nodes.values()))
         self.network.subscribe(cobid.SYNC, self._on_sync)
-        self._counts: AxisCounts | None = None
         self._stop = threading.Event()
         self._physics: threading.Thread | None = None
         if realtime:
@@ -93,19 +94,17 @@ class SimulatedRobot:
             if not self.realtime:
                 self._step()
             frames: list[tuple[int, bytes]] = []
-            self._counts = AxisCounts.sample(self.sim)  # once for every board's TPDOs
-            try:
-                for node in self.nodes.values():
-                    node.transmit_tpdos(frames)
-            finally:
-                self._counts = None
+            axes = AxisCounts.sample(self.sim)  # once for every node's TPDOs
+            self._sampler.pack(telemetry_row(axes, self.sim.imu()), axes, frames)
             send_frames(self.network, frames)
 
     def axis_counts(self) -> AxisCounts:
-        """The raw axis telemetry of the present state (the one of this SYNC while its TPDOs
-        are sampled)."""
-        counts = self._counts
-        return counts if counts is not None else AxisCounts.sample(self.sim)
+        """The raw axis telemetry of the present state."""
+        return AxisCounts.sample(self.sim)
+
+    def telemetry(self) -> list[int]:
+        """The robot's telemetry row of the present state (``devices.telemetry_row``)."""
+        return telemetry_row(AxisCounts.sample(self.sim), self.sim.imu())
 
     def _run_realtime(self) -> None:
         period = self.sim.control_period

@@ -104,8 +104,8 @@ _SI = st.one_of(st.floats(-1e300, 1e300), st.sampled_from([np.inf, -np.inf]),   
 def test_axis_counts_are_scale_to_raw_bit_for_bit(values):
     # every axis at once (numpy) must give exactly what Scale.to_raw gives value by value
     grid = np.array(values).reshape(4, 7)
-    expected = tuple([scale.to_raw(float(v)) for scale, v in zip(scales, row)]
-                     for scales, row in zip(_ROW_SCALES, grid))
+    expected = [scale.to_raw(float(v)) for scales, row in zip(_ROW_SCALES, grid)
+                for scale, v in zip(scales, row)]
     assert axis_counts(grid.copy()) == expected
 
 

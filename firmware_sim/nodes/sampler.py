@@ -1,0 +1,69 @@
+"""One TPDO sampler for the whole simulated robot: every node's synchronous TPDOs packed from
+one telemetry row per SYNC (``devices.telemetry_row``: the axes' counts computed for all boards
+at once, the IMU's counts, the sampling device's status word in the last slot), instead of
+each node sampling its application into its own value dict and packing from there.
+
+The frames, their order and their bytes are those the nodes would send themselves
+(``SlaveNode.transmit_tpdos``): the same counts, the same structs, node by node in the
+robot's device order, each node's due TPDOs in its own order.
+"""
+from __future__ import annotations
+
+import operator
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from firmware_sim.nodes.base import SlaveNode
+from firmware_sim.nodes.devices import STATUS_SLOT, AxisCounts, DeviceApp
+
+
+def _picker(slots: tuple[int, ...]) -> Callable[[list[int]], tuple[int, ...]]:
+    """The values at ``slots`` of a row as a tuple (``operator.itemgetter``, always a tuple)."""
+    get = operator.itemgetter(*slots)
+    return get if len(slots) > 1 else (lambda row: (get(row),))
+
+
+@dataclass(frozen=True)
+class NodePlan:
+    """A node with TPDOs and, per TPDO COB-ID, the picker of its values from a telemetry row."""
+
+    node: SlaveNode
+    app: DeviceApp
+    pickers: dict[int, Callable[[list[int]], tuple[int, ...]]]
+
+
+class TpdoSampler:
+    """Packs the due TPDOs of ``nodes`` (connected, applications ``DeviceApp``) from one row.
+
+    Raises ``ValueError`` at construction when a TPDO maps an object the node's application
+    does not sample (its ``slots``)."""
+
+    def __init__(self, nodes: Sequence[SlaveNode]) -> None:
+        plans = []
+        for node in nodes:
+            app = node.app
+            if not node.tpdo_layouts:
+                continue
+            if not isinstance(app, DeviceApp):
+                raise ValueError(f"node {node.id:#x}: its application samples no telemetry row")
+            pickers = {}
+            for tpdo in node.tpdo_layouts:
+                missing = [key for key in tpdo.keys if key not in app.slots]
+                if missing:
+                    raise ValueError(f"node {node.id:#x}: TPDO {tpdo.cob_id:#x} maps objects "
+                                     f"the device does not sample: {missing}")
+                pickers[tpdo.cob_id] = _picker(tuple(app.slots[key] for key in tpdo.keys))
+            plans.append(NodePlan(node, app, pickers))
+        self._plans = tuple(plans)
+
+    def pack(self, row: list[int], axes: AxisCounts, out: list[tuple[int, bytes]]) -> None:
+        """Append ``(COB-ID, data)`` of every TPDO due at this SYNC to ``out``; ``row`` is this
+        SYNC's telemetry row (its status slot is overwritten), ``axes`` its axis counts."""
+        for plan in self._plans:
+            due = plan.node.due_tpdos()
+            if not due:
+                continue
+            row[STATUS_SLOT] = plan.app.status_word(axes)
+            pickers = plan.pickers
+            for tpdo in due:
+                out.append((tpdo.cob_id, tpdo.layout.pack(*pickers[tpdo.cob_id](row))))
