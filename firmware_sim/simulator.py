@@ -235,14 +235,15 @@ class Simulator:
         force = d.actuator_force
         events: list[FailureEvent] = []
         step1, step2 = mujoco.mj_step1, mujoco.mj_step2
+        write_controls, monitor, update_cables = fw.write_controls, fw.monitor, cables.update
         check_scenario = scen.checks_substeps
         scen.before_step(phys)
         last = self.substeps - 1
         for k in range(self.substeps):
-            fw.write_controls()
+            write_controls()
             step2(m, d)
-            over = fw.monitor()
-            snapped = cables.update(force)
+            over = monitor()
+            snapped = update_cables(force)
             if check_scenario and scen.after_substep(phys):
                 events.append(FailureEvent(FailureKind.BOTTLE_DROPPED, d.time))
             if over or snapped:

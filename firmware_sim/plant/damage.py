@@ -107,7 +107,7 @@ class FallDetector:
     def __init__(self, physics: Physics, pitch_limit: float = 0.8) -> None:
         self.pitch_limit = pitch_limit
         self._physics = physics
-        self._geoms = physics.geom_mask(FALL_GEOMS)
+        self._geoms = frozenset(np.flatnonzero(physics.geom_mask(FALL_GEOMS)).tolist())
         self.fallen = False
 
     def reset(self) -> None:

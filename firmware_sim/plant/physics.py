@@ -189,15 +189,17 @@ class Physics:
         mask[[self.geom_id(n) for n in names]] = True
         return mask
 
-    def contacts_with_floor(self, geoms: np.ndarray) -> bool:
+    def contacts_with_floor(self, geoms: np.ndarray | frozenset[int]) -> bool:
         """True when a geom selected by ``geoms`` touches the floor now. ``geoms`` is a mask
-        from :meth:`geom_mask` (shape (ngeom,)) or an array of geom ids."""
+        from :meth:`geom_mask` (shape (ngeom,)), an array of geom ids or a frozenset of geom
+        ids (the cheapest: checked once per control period by the fall detector)."""
         if self.data.ncon == 0:
             return False
-        if geoms.dtype != bool:
-            mask = np.zeros(self.model.ngeom, dtype=bool)
-            mask[geoms] = True
-            geoms = mask
-        c = self.data.contact
-        g1, g2, floor = c.geom1, c.geom2, self.floor_geom_id
-        return bool(geoms[g2[g1 == floor]].any() or geoms[g1[g2 == floor]].any())
+        if not isinstance(geoms, frozenset):
+            geoms = frozenset((np.flatnonzero(geoms) if geoms.dtype == bool else geoms).tolist())
+        floor = self.floor_geom_id
+        # a few contacts a period: a loop over the pairs is cheaper than array masks
+        for g1, g2 in self.data.contact.geom.tolist():
+            if (g1 == floor and g2 in geoms) or (g2 == floor and g1 in geoms):
+                return True
+        return False

@@ -5,6 +5,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_sim.plant import AXES, UBOT_XML, WHEEL_RADIUS, read_motor_params
 from firmware_sim.simulator import Simulator
@@ -77,3 +79,23 @@ def test_each_scenario_starts_at_rest_in_static_balance(scenario):
     assert np.all(d.qvel == 0.0)
     assert abs(d.qacc[phys.model.body_dofadr[phys.base_id] + 2]) < 0.05  # wheels carry the weight
     assert sim.sim_time == 0.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(scenario=st.sampled_from(["idle", "bracing", "lifting"]), seed=st.integers(0, 2 ** 31),
+       periods=st.integers(0, 120), torque=st.floats(-8.0, 8.0), pick=st.data())
+def test_floor_contact_check_agrees_with_the_contact_arrays(scenario, seed, periods, torque, pick):
+    # the pair loop of contacts_with_floor against MuJoCo's contact arrays masked whole
+    sim = Simulator()
+    sim.reset(scenario, seed)
+    sim.set_wheel_torque(torque, torque)
+    for _ in range(periods):
+        sim.step()
+    phys = sim.physics
+    ngeom = phys.model.ngeom
+    mask = np.array(pick.draw(st.lists(st.booleans(), min_size=ngeom, max_size=ngeom)))
+    c, floor = phys.data.contact, phys.floor_geom_id
+    expected = bool(mask[c.geom2[c.geom1 == floor]].any() or mask[c.geom1[c.geom2 == floor]].any())
+    assert phys.contacts_with_floor(mask) is expected
+    assert phys.contacts_with_floor(np.flatnonzero(mask)) is expected
+    assert phys.contacts_with_floor(frozenset(np.flatnonzero(mask).tolist())) is expected
