@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Collection
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 from ersac_hil.cli_args import output_dir
@@ -101,7 +101,8 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
         return 2
     sizes = resolved.sizes
     code = {**resolved.record["model"], **fingerprint(LEARNING)}  # what the guard watches
-    meta = {"sizes": asdict(sizes), "quick": resolved.quick, "model": resolved.record["model"]}
+    # per experiment: what each recorded experiment was made with (not only this invocation's)
+    meta = {"sizes": resolved.record["experiments"], "quick": resolved.quick, "model": resolved.record["model"]}
     report = results.load(out)
     timing = report.get("meta", {}).get("timing", {})
     total, count = _count(out, sizes, experiments)

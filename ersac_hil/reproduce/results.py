@@ -105,8 +105,9 @@ def markdown(r: dict[str, Any]) -> str:
     lines = ["# ersac-hil reproduce: results", ""]
     meta = r.get("meta", {})
     if meta:
-        lines += [f"Sizes: `{json.dumps(meta.get('sizes', {}))}`; pairs {meta.get('pairs')}; "
-                  f"{'quick' if meta.get('quick') else 'full'} run.", ""]
+        lines += [f"Sizes per experiment (this invocation: pairs {meta.get('pairs')}, "
+                  f"{'quick' if meta.get('quick') else 'full'} sizes):", ""]
+        lines += [f"- {exp}: `{json.dumps(values)}`" for exp, values in meta.get("sizes", {}).items()] + [""]
         for exp, t in meta.get("timing", {}).items():
             lines.append(f"- {exp}: {t['wall_s'] / 60:.1f} min of wall time, load average "
                          f"{t['load_start']:.1f} -> {t['load_end']:.1f}")
