@@ -62,6 +62,7 @@ from __future__ import annotations
 import json
 import queue
 import struct
+import threading
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -79,6 +80,8 @@ __all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "encode
            "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
+#: How long ``shutdown`` waits for a put in progress on another thread (seconds).
+SHUTDOWN_WAIT_S = 5.0
 _HEADER = struct.Struct("<IBBB")
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
 
@@ -251,6 +254,9 @@ class ZenohBus(BusABC):
         self._subscriber = self._session.declare_subscriber(self.key, self._on_sample,
                                                             allowed_origin=origin)
         self._closed = False
+        #: held by every put and by shutdown: zenoh's publisher must not be undeclared while
+        #: another thread is inside its put (zenoh raises "Already borrowed")
+        self._send_lock = threading.Lock()
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         self._can_protocol = CanProtocol.CAN_FD
 
@@ -301,22 +307,30 @@ class ZenohBus(BusABC):
             self._put(b"".join([encode_frame(m) for m in msgs]))
 
     def _put(self, payload: bytes) -> None:
-        if self._closed:
-            raise can.CanOperationError(f"{self.channel_info}: bus is shut down")
-        try:
-            self._publisher.put(payload)
-        except zenoh.ZError as exc:
-            raise can.CanOperationError(f"{self.channel_info}: {exc}") from exc
+        with self._send_lock:
+            if self._closed:
+                raise can.CanOperationError(f"{self.channel_info}: bus is shut down")
+            try:
+                self._publisher.put(payload)
+            except zenoh.ZError as exc:
+                raise can.CanOperationError(f"{self.channel_info}: {exc}") from exc
 
     def shutdown(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+        # a put in progress on another thread ends first; one blocked on a dead link (congestion
+        # control BLOCK) does not hold the shutdown for longer than SHUTDOWN_WAIT_S
+        acquired = self._send_lock.acquire(timeout=SHUTDOWN_WAIT_S)
+        try:
+            if self._closed:
+                return
+            self._closed = True
+        finally:
+            if acquired:
+                self._send_lock.release()
         super().shutdown()
         for entity in (self._subscriber, self._publisher):
             try:
                 entity.undeclare()
-            except zenoh.ZError:
+            except (zenoh.ZError, RuntimeError):  # RuntimeError: still in a blocked put; closing the session ends it
                 pass
         self._session.close()
 

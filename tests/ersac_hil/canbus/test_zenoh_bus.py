@@ -303,3 +303,30 @@ def test_a_plain_channel_cannot_reach_the_secured_router(secure_can_router):
 def test_bad_session_arguments_are_refused(kwargs, match):
     with pytest.raises(can.CanInitializationError, match=match):
         can.Bus(interface="zenoh", channel="c@tcp/127.0.0.1:7447", **kwargs)
+
+
+def test_shutdown_while_another_thread_sends_is_clean(can_router):
+    """A bus shut down while another thread is sending (a simulator's SYNC thread at the end of a
+    run): the shutdown completes without error and the sender gets CanOperationError."""
+    import threading
+    for _ in range(30):
+        bus = can.Bus(interface="zenoh", channel=f"race-{uuid.uuid4().hex[:8]}@{can_router.endpoint}")
+        errors: list[BaseException] = []
+        started = threading.Event()
+
+        def send() -> None:
+            msg = can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False)
+            started.set()
+            try:
+                while True:
+                    bus.send(msg)
+            except can.CanOperationError:
+                return
+            except BaseException as exc:  # noqa: BLE001 - anything else is the failure
+                errors.append(exc)
+        sender = threading.Thread(target=send)
+        sender.start()
+        started.wait(5)
+        bus.shutdown()
+        sender.join(5)
+        assert not sender.is_alive() and errors == []
