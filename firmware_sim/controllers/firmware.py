@@ -141,6 +141,7 @@ class Firmware:
         m.actuator_forcerange[self._act, 0] = -limit
         m.actuator_forcerange[self._act, 1] = limit
         self._sat_threshold = limit * (1.0 - 1e-9)
+        self._sat_threshold_list = self._sat_threshold.tolist()
         self._sat_ticks = np.maximum(1, np.round(self.overcurrent_time / self.dt)).astype(np.int64)
         self._min_sat_ticks = int(self._sat_ticks.min())
         d.ctrl[self._pos_ctrl] = self._gear[IMPEDANCE] * self.q_ref[IMPEDANCE]
@@ -264,6 +265,12 @@ class Firmware:
         over-current fault latched in this substep."""
         self.tick += 1
         force = self._force if self._force is not None else self.physics.data.actuator_force[self._act_view]
+        if not self._counting:  # no axis was limiting (the flags are all clear): scalar check first
+            for f, threshold in zip(force.tolist(), self._sat_threshold_list):
+                if abs(f) >= threshold:
+                    break
+            else:
+                return ()
         force = np.abs(force, out=self._abs_force)
         limiting = np.greater_equal(force, self._sat_threshold, out=self.current_limiting)
         count = self._sat_count

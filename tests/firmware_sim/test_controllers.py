@@ -240,3 +240,44 @@ def test_setpoint_cancels_a_running_spline(sim):
     status = sim.controller("arm_right").status("elbow_right")
     assert not status.spline_active and not status.spline_done
     assert sim.controller("arm_right").setpoint("elbow_right") == q
+
+
+def _monitor_arrays(force, threshold, count, counting, over, ticks):
+    """The over-current monitor written with whole-array operations only: (limiting, count,
+    counting, over-current, latched axes) after one substep with ``force`` (shape (7,))."""
+    limiting = np.abs(force) >= threshold
+    if not limiting.any():
+        return limiting, count * 0 if counting else count, False, over, ()
+    count = (count + 1) * limiting
+    new = (count >= ticks) & ~over
+    return limiting, count, True, over | new, tuple(np.flatnonzero(new).tolist())
+
+
+_RATIO = st.one_of(st.floats(-3.0, 3.0), st.sampled_from([0.0, -0.0, 1.0, -1.0, math.inf, -math.inf, math.nan]))
+"""Force over the limiting threshold (exactly at it: 1.0, -1.0)."""
+
+
+@settings(max_examples=60, deadline=None)
+@given(ratios=st.lists(st.lists(_RATIO, min_size=7, max_size=7), min_size=1, max_size=30),
+       limits=st.lists(st.floats(0.05, 1.0), min_size=7, max_size=7),
+       oc_time=st.sampled_from([0.001, 0.002, 0.005]))
+def test_over_current_monitor_agrees_with_whole_array_operations(shared, ratios, limits, oc_time):
+    # the monitor's scalar check while no axis limits must change nothing: the same flags,
+    # counts and latches substep by substep as the whole-array formulation
+    shared.reset("idle", 0)
+    fw = shared.controller("wheels")._fw
+    fw.current_limit[:] = np.array(limits) * fw.hw_current_limit
+    fw.overcurrent_time[:] = oc_time
+    fw.push()
+    threshold, ticks = fw._sat_threshold.copy(), fw._sat_ticks.copy()
+    count, counting, over = np.zeros(7, dtype=np.int64), False, np.zeros(7, dtype=bool)
+    act = shared.physics.axes.actuator
+    for ratio in ratios:
+        force = np.array(ratio) * threshold
+        shared.physics.data.actuator_force[act] = force
+        limiting, count, counting, over, latched = _monitor_arrays(
+            force, threshold, count, counting, over, ticks)
+        assert fw.monitor() == latched
+        assert np.array_equal(fw.current_limiting, limiting)
+        assert np.array_equal(fw._sat_count, count)
+        assert np.array_equal(fw.over_current, over)
