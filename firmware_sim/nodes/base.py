@@ -59,6 +59,10 @@ class TpdoLayout:
     keys: tuple[Key, ...]
     values_of: Callable[[dict[Key, int]], tuple[int, ...]]
 
+    def due(self, sync_count: int) -> bool:
+        """Sent at the node's ``sync_count``-th SYNC (counted from 1; 0: the node sends none)."""
+        return sync_count > 0 and sync_count % self.every == 0
+
 
 class NodeApplication:
     """Hooks a device implements. The defaults are the reference (static) behaviour."""
@@ -291,14 +295,18 @@ class SlaveNode(canopen.LocalNode):
         """The node's synchronous TPDOs (after ``connect``), in transmission order."""
         return tuple(self._layouts)
 
-    def due_tpdos(self) -> list[TpdoLayout]:
-        """Count this SYNC and return the synchronous TPDOs due at it: none unless operational
-        and on the bus (a node taken off the bus by ``close`` sends nothing)."""
+    def count_sync(self) -> int:
+        """Count this SYNC for the TPDOs' transmission types: the node's SYNC count, 0 when it
+        sends no TPDOs (not operational, or taken off the bus by ``close``)."""
         if self.nmt._state != OPERATIONAL or not self.has_network():
-            return []
+            return 0
         self.sync_count += 1
-        count = self.sync_count
-        return [layout for layout in self._layouts if count % layout.every == 0]
+        return self.sync_count
+
+    def due_tpdos(self) -> list[TpdoLayout]:
+        """Count this SYNC (``count_sync``) and return the synchronous TPDOs due at it."""
+        count = self.count_sync()
+        return [layout for layout in self._layouts if layout.due(count)]
 
     def transmit_tpdos(self) -> None:
         """Sample the application and send every synchronous TPDO due at this SYNC from the

@@ -13,7 +13,7 @@ import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from firmware_sim.nodes.base import SlaveNode
+from firmware_sim.nodes.base import SlaveNode, TpdoLayout
 from firmware_sim.nodes.devices import STATUS_SLOT, AxisCounts, DeviceApp
 
 
@@ -25,11 +25,12 @@ def _picker(slots: tuple[int, ...]) -> Callable[[list[int]], tuple[int, ...]]:
 
 @dataclass(frozen=True)
 class NodePlan:
-    """A node with TPDOs and, per TPDO COB-ID, the picker of its values from a telemetry row."""
+    """A node with TPDOs; per TPDO (the node's order) its layout, its struct's ``pack`` and the
+    picker of its values from a telemetry row."""
 
     node: SlaveNode
     app: DeviceApp
-    pickers: dict[int, Callable[[list[int]], tuple[int, ...]]]
+    tpdos: tuple[tuple[TpdoLayout, Callable[..., bytes], Callable[[list[int]], tuple[int, ...]]], ...]
 
 
 class TpdoSampler:
@@ -46,24 +47,24 @@ class TpdoSampler:
                 continue
             if not isinstance(app, DeviceApp):
                 raise ValueError(f"node {node.id:#x}: its application samples no telemetry row")
-            pickers = {}
+            tpdos = []
             for tpdo in node.tpdo_layouts:
                 missing = [key for key in tpdo.keys if key not in app.slots]
                 if missing:
                     raise ValueError(f"node {node.id:#x}: TPDO {tpdo.cob_id:#x} maps objects "
                                      f"the device does not sample: {missing}")
-                pickers[tpdo.cob_id] = _picker(tuple(app.slots[key] for key in tpdo.keys))
-            plans.append(NodePlan(node, app, pickers))
+                tpdos.append((tpdo, tpdo.layout.pack, _picker(tuple(app.slots[key] for key in tpdo.keys))))
+            plans.append(NodePlan(node, app, tuple(tpdos)))
         self._plans = tuple(plans)
 
     def pack(self, row: list[int], axes: AxisCounts, out: list[tuple[int, bytes]]) -> None:
         """Append ``(COB-ID, data)`` of every TPDO due at this SYNC to ``out``; ``row`` is this
         SYNC's telemetry row (its status slot is overwritten), ``axes`` its axis counts."""
         for plan in self._plans:
-            due = plan.node.due_tpdos()
-            if not due:
+            count = plan.node.count_sync()
+            if not count:
                 continue
             row[STATUS_SLOT] = plan.app.status_word(axes)
-            pickers = plan.pickers
-            for tpdo in due:
-                out.append((tpdo.cob_id, tpdo.layout.pack(*pickers[tpdo.cob_id](row))))
+            for tpdo, pack, pick in plan.tpdos:
+                if tpdo.due(count):
+                    out.append((tpdo.cob_id, pack(*pick(row))))
