@@ -59,6 +59,21 @@ def _drain(bus: can.BusABC, wait_s: float = 0.5) -> list[int]:
     return [m.arbitration_id for m in iter(lambda: bus.recv(wait_s), None)]
 
 
+def _assert_closed_to_the_stranger(sim: can.BusABC, agent: can.BusABC, stranger: can.BusABC) -> None:
+    """The robot's simulator and agent talk both ways; frames of another robot's identity on
+    the channel never reach the simulator, and it never hears the simulator."""
+    assert _heard(agent, sim, 0x201) and _heard(sim, agent, 0x181)
+    _drain(sim), _drain(agent)
+    for _ in range(20):
+        stranger.send(can.Message(arbitration_id=0x7, data=b"\x00", is_extended_id=False))
+    agent.send(can.Message(arbitration_id=0x202, data=b"\x02", is_extended_id=False))
+    heard = _drain(sim)
+    assert 0x202 in heard and 0x7 not in heard  # the stranger cannot write on the bus
+    sim.send(can.Message(arbitration_id=0x182, data=b"\x02", is_extended_id=False))
+    assert agent.recv(TIMEOUT) is not None
+    assert stranger.recv(0.5) is None  # nor hear it
+
+
 def test_the_set_has_one_agent_and_one_simulator_per_robot_and_no_fleet_wide_ones(fleet):
     names = [name for name, _, _ in identities(ROBOTS)]
     assert set(fleet.configs) == set(names)
@@ -129,16 +144,7 @@ def test_a_robots_can_channel_is_closed_to_the_other_robots_identities(fleet):
     sim1, sim2 = _bus(fleet, "simulator-ubot1", "ubot1"), _bus(fleet, "simulator-ubot2", "ubot2")
     agent1_on_2, agent2 = _bus(fleet, "agent-ubot1", "ubot2"), _bus(fleet, "agent-ubot2", "ubot2")
     try:
-        assert _heard(agent2, sim2, 0x201) and _heard(sim2, agent2, 0x181)
-        _drain(sim2), _drain(agent2)
-        for _ in range(20):
-            agent1_on_2.send(can.Message(arbitration_id=0x7, data=b"\x00", is_extended_id=False))
-        agent2.send(can.Message(arbitration_id=0x202, data=b"\x02", is_extended_id=False))
-        heard = _drain(sim2)
-        assert 0x202 in heard and 0x7 not in heard  # ubot1's agent cannot write on ubot2's bus
-        sim2.send(can.Message(arbitration_id=0x182, data=b"\x02", is_extended_id=False))
-        assert agent2.recv(TIMEOUT) is not None
-        assert agent1_on_2.recv(0.5) is None  # nor hear it
+        _assert_closed_to_the_stranger(sim2, agent2, agent1_on_2)
         agent1 = _bus(fleet, "agent-ubot1", "ubot1")
         try:
             assert _heard(agent1, sim1, 0x203)  # its own channel works
@@ -154,15 +160,7 @@ def test_a_per_robot_simulators_direct_link_admits_only_its_robots_agent(fleet):
     sim = _bus(fleet, "simulator-ubot1", "ubot1", listen=endpoint)
     agent, stranger = (_bus(fleet, "agent-ubot1", f"ubot1@{endpoint}"), _bus(fleet, "agent-ubot2", f"ubot1@{endpoint}"))
     try:
-        assert _heard(agent, sim, 0x201) and _heard(sim, agent, 0x181)
-        _drain(sim), _drain(agent)
-        for _ in range(20):
-            stranger.send(can.Message(arbitration_id=0x7, data=b"\x00", is_extended_id=False))
-        agent.send(can.Message(arbitration_id=0x202, data=b"\x02", is_extended_id=False))
-        heard = _drain(sim)
-        assert 0x202 in heard and 0x7 not in heard
-        sim.send(can.Message(arbitration_id=0x182, data=b"\x02", is_extended_id=False))
-        assert agent.recv(TIMEOUT) is not None and stranger.recv(0.5) is None
+        _assert_closed_to_the_stranger(sim, agent, stranger)
     finally:
         for bus in (stranger, agent, sim):
             bus.shutdown()
