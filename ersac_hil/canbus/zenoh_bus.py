@@ -149,6 +149,13 @@ def decode_frame(payload: bytes, channel: str | None = None) -> can.Message:
     return frames[0]
 
 
+def _endpoints(value: str | Sequence[str] | None) -> tuple[str, ...]:
+    """Endpoints given as a comma-separated string (python-can configuration) or a sequence."""
+    if value is None:
+        return ()
+    return tuple(e for e in value.split(",") if e) if isinstance(value, str) else tuple(value)
+
+
 def parse_channel(channel: Any, connect: str | Sequence[str] | None = None, *,
                   need_endpoint: bool = True) -> tuple[str, tuple[str, ...]]:
     """``(channel name, endpoints)`` from ``"name"`` plus ``connect``, or ``"name@ep[,ep...]"``;
@@ -160,9 +167,7 @@ def parse_channel(channel: Any, connect: str | Sequence[str] | None = None, *,
     if not isinstance(channel, str) or not channel:
         raise ValueError(f"zenoh CAN channel must be a non-empty string, got {channel!r}")
     name, _, inline = channel.partition("@")
-    endpoints: list[str] = [e for e in inline.split(",") if e] if inline else []
-    if connect is not None:
-        endpoints += [e for e in connect.split(",") if e] if isinstance(connect, str) else list(connect)
+    endpoints = _endpoints(inline) + _endpoints(connect)
     try:
         validate_chunk(name, "zenoh CAN channel name")
     except KeySpaceError as exc:
@@ -170,14 +175,7 @@ def parse_channel(channel: Any, connect: str | Sequence[str] | None = None, *,
     if need_endpoint and not endpoints:
         raise ValueError(f"zenoh CAN channel {name!r}: no Zenoh endpoint (channel 'name@tcp/HOST:PORT', "
                          "connect=... or zenoh_config=FILE)")
-    return name, tuple(endpoints)
-
-
-def _endpoints(value: str | Sequence[str] | None) -> tuple[str, ...]:
-    """Endpoints given as a comma-separated string (python-can configuration) or a sequence."""
-    if value is None:
-        return ()
-    return tuple(e for e in value.split(",") if e) if isinstance(value, str) else tuple(value)
+    return name, endpoints
 
 
 def _flag(value: bool | str, name: str) -> bool:

@@ -22,6 +22,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import canopen
 from canopen.nmt import NMT_COMMANDS, NmtSlave
@@ -41,8 +42,9 @@ WATCHDOG_TICK_S = 0.02
 """Heartbeat production and consumer check resolution (loss detected within 20 ms)."""
 
 
-def _getter(keys: tuple[Key, ...]) -> Callable[[dict[Key, int]], tuple[int, ...]]:
-    """The values of ``keys`` from a dict as a tuple (``operator.itemgetter``, always a tuple)."""
+def tuple_getter(keys: tuple) -> Callable[[Any], tuple[int, ...]]:
+    """The values at ``keys`` of a dict (object keys) or a list (slots) as a tuple
+    (``operator.itemgetter``, always a tuple)."""
     get = operator.itemgetter(*keys)
     return get if len(keys) > 1 else (lambda values: (get(values),))
 
@@ -180,7 +182,7 @@ class SlaveNode(canopen.LocalNode):
                 handler = self._rpdo_handler(specs[("rpdo", number)])
                 network.subscribe(pdo_map.cob_id, handler)
                 self._rpdo_handlers.append((pdo_map.cob_id, handler))
-        self._layouts = [TpdoLayout(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, _getter(spec.keys))
+        self._layouts = [TpdoLayout(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, tuple_getter(spec.keys))
                          for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
                          if m.enabled and 1 <= (m.trans_type or 0) <= 240]
         network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)

@@ -9,18 +9,11 @@ robot's device order, each node's due TPDOs in its own order.
 """
 from __future__ import annotations
 
-import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from firmware_sim.nodes.base import SlaveNode, TpdoLayout
+from firmware_sim.nodes.base import SlaveNode, TpdoLayout, tuple_getter
 from firmware_sim.nodes.devices import STATUS_SLOT, AxisCounts, DeviceApp
-
-
-def _picker(slots: tuple[int, ...]) -> Callable[[list[int]], tuple[int, ...]]:
-    """The values at ``slots`` of a row as a tuple (``operator.itemgetter``, always a tuple)."""
-    get = operator.itemgetter(*slots)
-    return get if len(slots) > 1 else (lambda row: (get(row),))
 
 
 @dataclass(frozen=True)
@@ -53,7 +46,7 @@ class TpdoSampler:
                 if missing:
                     raise ValueError(f"node {node.id:#x}: TPDO {tpdo.cob_id:#x} maps objects "
                                      f"the device does not sample: {missing}")
-                tpdos.append((tpdo, tpdo.layout.pack, _picker(tuple(app.slots[key] for key in tpdo.keys))))
+                tpdos.append((tpdo, tpdo.layout.pack, tuple_getter(tuple(app.slots[key] for key in tpdo.keys))))
             plans.append(NodePlan(node, app, tuple(tpdos)))
         self._plans = tuple(plans)
 
