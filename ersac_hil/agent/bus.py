@@ -26,6 +26,7 @@ under one condition variable); ``cycle``/SDO calls come from one caller thread.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -46,7 +47,7 @@ from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import Scale
-from protocol.can.pdo import pdo_maps, pdo_struct
+from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,8 @@ class AgentBus:
         self._hb_seen: dict[str, float] = {}
         self._emcy: list[EmcyEvent] = []
         self._tpdo_device: dict[int, str] = {}
-        self._tpdo_keys: dict[int, tuple[tuple[int, int], ...]] = {}
+        self._tpdo_specs: dict[int, PdoSpec] = {}
+        self._cyclic_oldest = -math.inf  # the oldest last heartbeat of the cyclic nodes (-inf: one unheard)
         self._decoder: TelemetryDecoder | None = None
         self._tpdos: TpdoCollector | None = None
         self._encoder: CommandEncoder | None = None
@@ -117,7 +119,7 @@ class AgentBus:
         except (OSError, can.CanError, ValueError) as exc:
             raise BusDown(f"cannot open CAN bus {self.config.describe()}: {exc}") from exc
         net = self.network
-        rpdos, tpdos = [], {}
+        rpdos, sizes = [], {}
         for dev in self.devices:
             node = canopen.RemoteNode(dev.node_id, object_dictionary(dev))
             net.add_node(node)
@@ -132,15 +134,19 @@ class AgentBus:
                 if pdo_map.enabled and pdo_map.trans_type and 1 <= pdo_map.trans_type <= 240:
                     spec = specs[("tpdo", number)]
                     net.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
-                    tpdos[pdo_map.cob_id] = pdo_struct(spec)
+                    sizes[pdo_map.cob_id] = pdo_struct(spec).size
                     self._tpdo_device[pdo_map.cob_id] = dev.name
-                    self._tpdo_keys[pdo_map.cob_id] = spec.keys
+                    self._tpdo_specs[pdo_map.cob_id] = spec
             if dev in ACTUATED:
                 rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                           for n, m in node.rpdo.map.items() if m.enabled]
-        self._tpdos, self._encoder = TpdoCollector(tpdos), CommandEncoder(rpdos)
-        for cob_id in tpdos:
-            net.subscribe(cob_id, self._tpdos.handler(cob_id))
+        self._tpdos, self._encoder = TpdoCollector(sizes), CommandEncoder(rpdos)
+        intercept = getattr(net.notifier, "intercept", None)
+        if intercept is not None:  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
+            intercept(self._tpdos.take)
+        else:
+            for cob_id in sizes:
+                net.subscribe(cob_id, self._tpdos.handler(cob_id))
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
         return self
@@ -178,7 +184,10 @@ class AgentBus:
         """canopen's NMT master tracks each node's state; its age is kept here (canopen has
         no heartbeat consumer)."""
         with self._cond:
-            self._hb_seen[name] = time.monotonic()
+            seen = self._hb_seen
+            seen[name] = time.monotonic()
+            if name in _CYCLIC_NAMES:
+                self._cyclic_oldest = min([seen.get(n, -math.inf) for n in _CYCLIC_NAMES])
 
     def heartbeat_ages(self) -> dict[str, float | None]:
         """Seconds since each device's last heartbeat (``None``: never heard)."""
@@ -206,6 +215,8 @@ class AgentBus:
     def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
         """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
         now, timeout = time.monotonic(), self.timing.heartbeat_timeout_s
+        if devices is CYCLIC and now - self._cyclic_oldest <= timeout:
+            return  # every cyclic node heard within the timeout (the oldest was)
         names = _CYCLIC_NAMES if devices is CYCLIC else [_name(dev) for dev in devices]
         with self._cond:
             seen = [(name, self._hb_seen.get(name)) for name in names]
@@ -302,9 +313,7 @@ class AgentBus:
         self.check_heartbeats()
         if self.timing.realtime:
             self._pace()
-        with self._cond:
-            self.cycles += 1
-            cycle = self.cycles
+        self.cycles = cycle = self.cycles + 1  # only this thread writes it (EMCY callbacks read it)
         tpdos = self._tpdos
         tpdos.expect()  # type: ignore[union-attr]
         frames = self._encoder.encode(self._last_commands)  # type: ignore[union-attr]
@@ -323,8 +332,7 @@ class AgentBus:
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
         if self._decoder is None:
-            self._decoder = TelemetryDecoder({cob_id: (self._tpdo_device[cob_id], self._tpdo_keys[cob_id])
-                                              for cob_id in self._tpdo_device})
+            self._decoder = TelemetryDecoder(tuple(self._tpdo_specs.values()))
         return self._decoder.decode(cycle, received, latency)
 
     def _pace(self) -> None:

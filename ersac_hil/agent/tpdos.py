@@ -1,72 +1,103 @@
-"""The synchronous TPDOs of the SYNC in flight: unpacked as they arrive, waited for by the cycle.
+"""The synchronous TPDOs of the SYNC in flight: kept as they arrive, waited for by the cycle.
 
-    collector = TpdoCollector({cob_id: struct, ...})
-    network.subscribe(cob_id, collector.handler(cob_id))   # for every COB-ID, once
+    collector = TpdoCollector({cob_id: size, ...})
+    network.subscribe(cob_id, collector.handler(cob_id))   # frame by frame, for every COB-ID
+    notifier.intercept(collector.take)                     # or a whole burst at once (CAN over Zenoh)
     collector.expect()                                     # before each SYNC goes out
-    frames, missing = collector.wait(deadline)             # unpacked fields by COB-ID
+    frames, missing = collector.wait(deadline)             # data of each frame by COB-ID
 
-The handlers run on the bus's receive thread. The frame that completes the set wakes the
-waiting cycle by releasing a plain lock (no ``threading.Condition``: its Python-level waiter
-bookkeeping cost more than the rest of a TPDO's handling). A frame that is not expected (late,
-after a timeout, or a second copy) is ignored.
+Frames arrive on the bus's receive thread, one by one through canopen (``handler``) or a
+Zenoh sample's burst in one call (``take``: one lock per burst, the TPDOs consumed, the other
+frames left for canopen). The frame that completes the set wakes the waiting cycle by
+releasing a plain lock (no ``threading.Condition``: its
+Python-level waiter bookkeeping cost more than the rest of a TPDO's handling). A frame that is
+not expected (late, after a timeout, or a second copy) or shorter than its map is ignored;
+each frame's data is kept as the first ``size`` bytes of the map, unpacked by the caller
+(``telemetry.TelemetryDecoder``).
 """
 from __future__ import annotations
 
-import struct
 import threading
 import time
 from collections.abc import Callable, Mapping
 
+from ersac_hil.canbus.zenoh_bus import NOT_DATA, Frame
+
 __all__ = ["TpdoCollector"]
+
+_NONE_MISSING: frozenset[int] = frozenset()
 
 
 class TpdoCollector:
     """Args:
-        layouts: per COB-ID of a synchronous TPDO, the struct of its fields.
+        sizes: per COB-ID of a synchronous TPDO, the size of its map in bytes.
     """
 
-    def __init__(self, layouts: Mapping[int, struct.Struct]) -> None:
-        self._layouts = dict(layouts)
+    def __init__(self, sizes: Mapping[int, int]) -> None:
+        self._sizes = dict(sizes)
         self._lock = threading.Lock()
         self._arrived = threading.Lock()
         self._arrived.acquire()  # held while a set is incomplete; released by its last frame
         self._pending: set[int] = set()
-        self._frames: dict[int, tuple[int, ...]] = {}
+        self._frames: dict[int, bytes | bytearray] = {}
 
     def handler(self, cob_id: int) -> Callable[[int, bytearray, float], None]:
         """The ``(can_id, data, timestamp)`` callback of ``cob_id`` (canopen's subscriber
-        signature); frames shorter than the map are ignored."""
-        layout = self._layouts[cob_id]
-        unpack, size = layout.unpack_from, layout.size
+        signature)."""
+        size = self._sizes[cob_id]
         lock, pending, frames, arrived = self._lock, self._pending, self._frames, self._arrived
 
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
-            if len(data) < size:
+            n = len(data)
+            if n < size:
                 return
             with lock:
                 if cob_id not in pending:
                     return
-                frames[cob_id] = unpack(data)
+                frames[cob_id] = data if n == size else data[:size]
                 pending.discard(cob_id)
                 if not pending:
                     arrived.release()
         return on_frame
 
+    def take(self, frames: list[Frame], timestamp: float) -> list[Frame]:
+        """A burst interceptor (``ersac_hil.canbus.zenoh_bus.PushNotifier.intercept``): keeps
+        the expected data frames of ``frames`` as ``handler`` would, one after the other, and
+        returns the others in order."""
+        sizes, pending, kept = self._sizes, self._pending, self._frames
+        rest: list[Frame] = []
+        with self._lock:
+            waiting = bool(pending)
+            for frame in frames:
+                cob_id, flags, _, data = frame
+                if cob_id in pending and not flags & NOT_DATA and len(data) >= sizes[cob_id]:
+                    size = sizes[cob_id]
+                    kept[cob_id] = data if len(data) == size else data[:size]
+                    pending.discard(cob_id)
+                else:
+                    rest.append(frame)
+            if waiting and not pending:
+                self._arrived.release()
+        return rest
+
     def expect(self) -> None:
         """A SYNC is about to go out: every TPDO pending, none received."""
         with self._lock:
-            self._pending.update(self._layouts)
+            self._pending.update(self._sizes)
             self._frames.clear()
 
-    def wait(self, deadline: float) -> tuple[dict[int, tuple[int, ...]], set[int]]:
+    def wait(self, deadline: float) -> tuple[Mapping[int, bytes | bytearray], frozenset[int] | set[int]]:
         """Until every expected TPDO is in or ``time.perf_counter()`` passes ``deadline``:
-        the unpacked fields by COB-ID and the COB-IDs still missing (none pending afterwards)."""
-        if not self._layouts:
-            return {}, set()
-        done = self._arrived.acquire(timeout=max(0.0, deadline - time.perf_counter()))
+        the data of each frame by COB-ID (valid until the next ``expect``) and the COB-IDs
+        still missing (none pending afterwards)."""
+        if not self._sizes:
+            return {}, _NONE_MISSING
+        if self._arrived.acquire(timeout=max(0.0, deadline - time.perf_counter())):
+            return self._frames, _NONE_MISSING  # the set is complete: nothing writes until expect()
         with self._lock:
-            if not done and not self._pending:  # completed between the timeout and the lock
+            if not self._pending:  # completed between the timeout and the lock (released under it)
                 self._arrived.acquire(blocking=False)
+                return self._frames, _NONE_MISSING
             missing = set(self._pending)
             self._pending.clear()
-            return dict(self._frames), missing
+            return self._frames, missing

@@ -52,6 +52,12 @@ frames that way, without a ``can.Message`` built for it (data as a ``bytearray``
 message's; error and remote frames are not given to ``on_frame``; with ``can_filters`` set
 every listener gets messages).
 
+A whole sample at once (:meth:`PushNotifier.intercept`): an interceptor gets the frames of
+each sample in one call, as :data:`Frame` tuples, before the listeners (and before
+``can_filters``); it consumes the frames it handles and returns the others, which the
+listeners then get as usual - e.g. the agent takes the TPDOs of a SYNC with one call and one
+lock per burst instead of per frame and hands canopen the rest.
+
 Wire format of one sample: one or more frames back to back, each (little-endian)
 ``u32 arbitration_id``, ``u8 flags`` (bit 0 extended id, 1 remote, 2 error frame, 3 CAN FD,
 4 bit-rate switch, 5 error-state indicator), ``u8 dlc``, ``u8 length``, then ``length`` data
@@ -64,7 +70,7 @@ import queue
 import struct
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import can
@@ -76,14 +82,19 @@ from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "encode_frame", "encode_data_frames", "decode_frame",
-           "decode_frames", "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "Frame", "NOT_DATA", "encode_frame", "encode_data_frames",
+           "decode_frame", "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
 #: How long ``shutdown`` waits for a put in progress on another thread (seconds).
 SHUTDOWN_WAIT_S = 5.0
 _HEADER = struct.Struct("<IBBB")
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
+NOT_DATA = _REMOTE | _ERROR
+"""Flags of the frames that carry no data (remote and error frames; see the wire format)."""
+Frame = tuple[int, int, int, bytearray]
+"""One received frame as the push path handles it: ``(arbitration id, flags, dlc, data)``
+(flags as in the wire format)."""
 
 
 def encode_frame(msg: can.Message) -> bytes:
@@ -105,7 +116,7 @@ def decode_frames(payload: bytes, channel: str | None = None) -> list[can.Messag
     return [_message(frame, now, channel) for frame in _split(payload)]
 
 
-def _split(payload: bytes) -> list[tuple[int, int, int, bytearray]]:
+def _split(payload: bytes) -> list[Frame]:
     """``(arbitration id, flags, dlc, data)`` of every frame of a sample (see
     :func:`decode_frames`, which raises the same ``ValueError``)."""
     out, at, end, header, size = [], 0, len(payload), _HEADER.unpack_from, _HEADER.size
@@ -125,7 +136,7 @@ def _split(payload: bytes) -> list[tuple[int, int, int, bytearray]]:
     return out
 
 
-def _message(frame: tuple[int, int, int, bytearray], timestamp: float, channel: str | None) -> can.Message:
+def _message(frame: Frame, timestamp: float, channel: str | None) -> can.Message:
     arbitration_id, flags, dlc, data = frame
     return can.Message(timestamp=timestamp, arbitration_id=arbitration_id,
                        is_extended_id=bool(flags & _EXTENDED), is_remote_frame=bool(flags & _REMOTE),
@@ -270,7 +281,7 @@ class ZenohBus(BusABC):
         elif self._filters is None:
             push.deliver_frames(frames, now)
         else:
-            for frame in frames:
+            for frame in push.intercepted(frames, now):
                 msg = _message(frame, now, self._name)
                 if self._matches_filters(msg):
                     push.deliver(msg)
@@ -342,6 +353,29 @@ class PushNotifier:
         self.listeners = listeners
         self.exception: Exception | None = None
         self._stopped = False
+        self._take: Callable[[list[Frame], float], list[Frame]] | None = None
+
+    def intercept(self, take: Callable[[list[Frame], float], list[Frame]] | None) -> None:
+        """From now on hand every sample's frames to ``take(frames, timestamp)`` first, on the
+        receive thread, in one call: it consumes the frames it handles and returns the others
+        in order (a new list or ``frames`` itself), which the listeners then get as usual
+        (``can_filters`` apply to them only). ``None`` removes it. Its exception is kept like a
+        listener's (``exception``), and nothing more is delivered."""
+        self._take = take
+
+    def intercepted(self, frames: list[Frame], timestamp: float) -> list[Frame]:
+        """What the interceptor leaves of ``frames`` for the listeners (all without one; none
+        once stopped or failed)."""
+        if self._stopped or self.exception is not None:
+            return []
+        take = self._take
+        if take is None:
+            return frames
+        try:
+            return take(frames, timestamp)
+        except Exception as exc:  # noqa: BLE001 - kept for the owner, like can.Notifier
+            self._failed(exc)
+            return []
 
     def deliver(self, msg: can.Message) -> None:
         if self._stopped or self.exception is not None:
@@ -353,9 +387,13 @@ class PushNotifier:
         except Exception as exc:  # noqa: BLE001 - kept for the owner, like can.Notifier
             self._failed(exc)
 
-    def deliver_frames(self, frames: list[tuple[int, int, int, bytearray]], timestamp: float) -> None:
-        """The frames of one sample, in order: ``on_frame`` listeners get data frames as
-        ``(can_id, data, timestamp)``, the others a ``can.Message`` (one per frame, shared)."""
+    def deliver_frames(self, frames: list[Frame], timestamp: float) -> None:
+        """The frames of one sample, in order, what the interceptor leaves of them: ``on_frame``
+        listeners get data frames as ``(can_id, data, timestamp)``, the others a
+        ``can.Message`` (one per frame, shared)."""
+        frames = self.intercepted(frames, timestamp)
+        if not frames:
+            return
         channel = self.bus._name
         # each listener's entry point, looked up once per sample: (on_frame, None) or (None, callback)
         targets = [(on_frame, None) if on_frame is not None else
@@ -365,7 +403,7 @@ class PushNotifier:
             if self._stopped or self.exception is not None:
                 return
             msg = None
-            data_frame = not frame[1] & (_ERROR | _REMOTE)
+            data_frame = not frame[1] & NOT_DATA
             try:
                 for on_frame, callback in targets:
                     if on_frame is not None:

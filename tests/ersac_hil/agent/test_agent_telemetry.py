@@ -50,9 +50,10 @@ SYNC_TPDOS = [p for dev in CYCLIC for p in pdo_maps(dev) if p.direction == "tpdo
 @settings(max_examples=50, deadline=None)
 @given(tpdo_counts(), st.permutations(SYNC_TPDOS))
 def test_the_compiled_decoder_gives_decode_bit_for_bit(raw, tpdos):
-    # the agent's hot path: unpacked frames by COB-ID, in any frame order
-    decoder = TelemetryDecoder({p.cob_id: (p.device, p.keys) for p in tpdos})
-    frames = {p.cob_id: tuple(raw[p.device][k] for k in p.keys) for p in tpdos}
+    # the agent's hot path: the frames' data by COB-ID, maps in any order
+    from protocol.can.pdo import pdo_struct
+    decoder = TelemetryDecoder(tpdos)
+    frames = {p.cob_id: pdo_struct(p).pack(*[raw[p.device][k] for k in p.keys]) for p in tpdos}
     expected, got = Telemetry.decode(7, raw, 0.25), decoder.decode(7, frames, 0.25)
     assert got == expected and got.latency_s == 0.25
     assert [float(v).hex() for v in got.position + got.current] == [float(v).hex() for v in expected.position + expected.current]

@@ -20,7 +20,8 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ersac_hil.canbus.zenoh_bus import ZenohBus, decode_frame, decode_frames, encode_data_frames, encode_frame
+from ersac_hil.canbus.zenoh_bus import (NOT_DATA, ZenohBus, decode_frame, decode_frames, encode_data_frames,
+                                       encode_frame)
 
 TIMEOUT = 10.0
 
@@ -257,6 +258,48 @@ def test_frame_listeners_get_data_frames_without_messages_others_get_messages(pa
     assert raw == sent + [(0x80, b"")]  # no remote frame for a canopen network
     assert [(m.arbitration_id, bytes(m.data)) for m in msgs] == sent + [(0x701, b""), (0x80, b"")]
     assert msgs[13].is_remote_frame and all(m.is_rx and not m.is_extended_id for m in msgs)
+
+
+def test_an_interceptor_takes_a_sample_at_once_and_listeners_get_what_it_leaves(pair):
+    """The agent's TPDO path: one call per sample before the listeners (and their filters)."""
+    import threading
+    from helpers.waiting import wait_until
+    REMOTE = 2  # the wire format's flag bit 1, one of NOT_DATA
+    assert NOT_DATA & REMOTE
+    a, b = pair
+    samples: list[list[tuple[int, int, bytes]]] = []
+    msgs: list[can.Message] = []
+    done = threading.Event()
+
+    def take(frames, timestamp):  # noqa: ANN001
+        assert timestamp > 0 and all(isinstance(f[3], bytearray) for f in frames)
+        samples.append([(f[0], f[1], bytes(f[3])) for f in frames])
+        return [f for f in frames if f[0] >= 0x200]  # keeps the 0x1xx frames
+
+    def listener(msg: can.Message) -> None:
+        msgs.append(msg)
+        if msg.arbitration_id == 0x7FF:
+            done.set()
+
+    notifier = b.push_notifier([listener])
+    notifier.intercept(take)
+    sent = [(0x180 + i, bytes([i] * (i % 9))) for i in range(4)] + [(0x200 + i, bytes([i])) for i in range(3)]
+    a.send_data_frames(sent)
+    a.send_many([can.Message(arbitration_id=0x181, is_remote_frame=True, dlc=1, is_extended_id=False),
+                 can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False)])
+    assert done.wait(TIMEOUT)
+    assert samples == [[(i, 0, d) for i, d in sent], [(0x181, REMOTE, b""), (0x7FF, 0, b"")]]
+    assert [(m.arbitration_id, bytes(m.data)) for m in msgs] == sent[4:] + [(0x7FF, b"")]
+    b.set_filters([{"can_id": 0x201, "can_mask": 0x7FF}])  # filters: the interceptor still sees all
+    done.clear()
+    notifier.intercept(lambda frames, ts: (done.set(), frames)[1])
+    a.send_data_frames(sent)
+    assert done.wait(TIMEOUT)
+    notifier.intercept(lambda frames, ts: 1 / 0)  # its error is kept; nothing more delivered
+    a.send_data_frames(sent)
+    wait_until(lambda: notifier.exception is not None, what="the interceptor's error kept")
+    assert isinstance(notifier.exception, ZeroDivisionError)
+    assert [m.arbitration_id for m in msgs] == [i for i, _ in sent[4:]] + [0x7FF, 0x201]
 
 
 def _link(sender: can.BusABC, receiver: can.BusABC, arbitration_id: int) -> can.Message | None:
