@@ -31,7 +31,7 @@ import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
 from ersac_hil.agent.robot import UBOT, RobotParameters
-from ersac_hil.agent.telemetry import WHEELS_SLICE, Telemetry
+from ersac_hil.agent.telemetry import Telemetry
 
 
 @dataclass(frozen=True)
@@ -171,7 +171,7 @@ class BalanceController:
 
     def start(self, tel: Telemetry) -> None:
         """Hold the ground position of this sample."""
-        self._psi0 = float(np.mean(tel.position[WHEELS_SLICE])) + tel.pitch
+        self._psi0 = tel.wheel_position_mean + tel.pitch
         self.released = self.released_cycle = None
         self.saturated_cycles = 0
 
@@ -189,8 +189,8 @@ class BalanceController:
             return self._release("fallen", tel)
         if self.strike_acc is not None and abs(tel.pitch_acc) > self.strike_acc:
             return self._release("strike", tel)
-        phi = float(np.mean(tel.position[WHEELS_SLICE]))
-        phid = float(np.mean(tel.velocity[WHEELS_SLICE]))
+        phi = tel.wheel_position_mean
+        phid = tel.wheel_velocity_mean
         x = np.array([phi - (self._psi0 - alpha_ref), err_alpha, phid, tel.pitch_rate])
         u = -float(self.k @ x)
         if abs(u) > self.limit:

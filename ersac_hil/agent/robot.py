@@ -148,17 +148,27 @@ class RobotParameters:
         parts = self.lower_body + self.torso_parts + 2 * (self.upper_arm + self.forearm)
         return sum(p.mass for p in parts) + payload
 
-    def body_com(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0
-                 ) -> tuple[float, float, float]:
-        """Centre of mass ``(x, z)`` [m] in the body frame (axle origin, body upright) and the
-        pitch inertia about it [kg m^2], with the arms at ``left``/``right`` (shoulder, elbow)
-        and ``payload`` kg at the mean hand position."""
-        pts: list[tuple[float, float, float, float]] = []
+    def mass_points(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
+        """Every part as a point mass in the body frame (axle origin, body upright), with the
+        arms at ``left``/``right`` (shoulder, elbow) and ``payload`` kg at the mean hand
+        position: masses, x, z (arrays of shape ``(k,)``) and pitch inertias (a list), in a
+        fixed order (body, torso, each arm's upper arm and forearm, the payload)."""
+        m: list[float] = []
+        xs: list[float] = []
+        zs: list[float] = []
+        iyy: list[float] = []
+
+        def add(mass: float, x: float, z: float, inertia: float) -> None:
+            m.append(mass)
+            xs.append(x)
+            zs.append(z)
+            iyy.append(inertia)
+
         for p in self.lower_body:
-            pts.append((p.mass, p.x, p.z, p.iyy))
+            add(p.mass, p.x, p.z, p.iyy)
         for p in self.torso_parts:
-            pts.append((p.mass, p.x, self.torso_height + p.z, p.iyy))
-        hands = []
+            add(p.mass, p.x, self.torso_height + p.z, p.iyy)
         for shoulder, elbow in (left, right):
             for link_angle, origin, parts in ((shoulder, (0.0, self.shoulder_z), self.upper_arm),
                                               (shoulder + elbow, None, self.forearm)):
@@ -166,28 +176,33 @@ class RobotParameters:
                     origin = (self.upper_arm_length * math.sin(shoulder),
                               self.shoulder_z - self.upper_arm_length * math.cos(shoulder))
                 s, c = math.sin(link_angle), math.cos(link_angle)
-                for p in parts:
-                    # part at -z along the link: rotate (p.x, p.z) by the link angle
-                    x = origin[0] + p.x * c - p.z * s
-                    z = origin[1] + p.x * s + p.z * c
-                    pts.append((p.mass, x, z, p.iyy))
-            hx, hz = self.hand_position(shoulder, elbow, 0.0)
-            hands.append((float(hx), float(hz)))
-        if payload:
-            pts.append((payload, 0.5 * (hands[0][0] + hands[1][0]),
-                        0.5 * (hands[0][1] + hands[1][1]), 0.0))
-        m = np.array([q[0] for q in pts])
-        x = np.array([q[1] for q in pts])
-        z = np.array([q[2] for q in pts])
-        iyy = np.array([q[3] for q in pts])
+                for p in parts:  # part at -z along the link: rotate (p.x, p.z) by the link angle
+                    add(p.mass, origin[0] + p.x * c - p.z * s, origin[1] + p.x * s + p.z * c, p.iyy)
+        if payload:  # both hands in one call (elementwise: the same values as one by one)
+            hx, hz = self.hand_position(np.array([left[0], right[0]], dtype=float),
+                                        np.array([left[1], right[1]], dtype=float), 0.0)
+            add(payload, 0.5 * (float(hx[0]) + float(hx[1])), 0.5 * (float(hz[0]) + float(hz[1])), 0.0)
+        return np.array(m), np.array(xs), np.array(zs), iyy
+
+    @staticmethod
+    def _centre(m: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[float, float]:
         mass = m.sum()
-        cx, cz = float((m * x).sum() / mass), float((m * z).sum() / mass)
-        inertia = float((iyy + m * ((x - cx) ** 2 + (z - cz) ** 2)).sum())
+        return float((m * x).sum() / mass), float((m * z).sum() / mass)
+
+    def body_com(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0
+                 ) -> tuple[float, float, float]:
+        """Centre of mass ``(x, z)`` [m] in the body frame (axle origin, body upright) and the
+        pitch inertia about it [kg m^2], with the arms at ``left``/``right`` (shoulder, elbow)
+        and ``payload`` kg at the mean hand position."""
+        m, x, z, iyy = self.mass_points(left, right, payload)
+        cx, cz = self._centre(m, x, z)
+        inertia = float((np.array(iyy) + m * ((x - cx) ** 2 + (z - cz) ** 2)).sum())
         return cx, cz, inertia
 
     def balance_pitch(self, left=(0.0, 0.0), right=(0.0, 0.0), payload: float = 0.0) -> float:
-        """Body pitch [rad] that puts the centre of mass straight above the axle."""
-        cx, cz, _ = self.body_com(left, right, payload)
+        """Body pitch [rad] that puts the centre of mass straight above the axle (the LQR's
+        reference every cycle: the centre alone, no inertia)."""
+        cx, cz = self._centre(*self.mass_points(left, right, payload)[:3])
         return -math.atan2(cx, cz)
 
     def arm_inertia(self, elbow: float = 0.0) -> tuple[float, float]:

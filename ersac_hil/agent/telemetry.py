@@ -11,7 +11,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from operator import itemgetter
+from operator import itemgetter, mul
 from typing import Any
 
 import numpy as np
@@ -132,6 +132,12 @@ class CommandEncoder:
         return frames
 
 
+def mean2(a: float, b: float) -> float:
+    """``float(np.mean((a, b)))`` to the bit without numpy's call overhead: the sum of two
+    floats, never -0.0 (numpy adds to a +0.0), halved."""
+    return (a + b + 0.0) / 2
+
+
 @dataclass(frozen=True)
 class Telemetry:
     """Everything the synchronous TPDOs of one SYNC cycle carried, in SI units.
@@ -191,6 +197,16 @@ class Telemetry:
         return self.velocity[WHEELS_SLICE]  # type: ignore[return-value]
 
     @property
+    def wheel_position_mean(self) -> float:
+        """Mean of the two wheel angles [rad], ``float(np.mean(wheel_positions))`` to the bit."""
+        return mean2(*self.position[WHEELS_SLICE])
+
+    @property
+    def wheel_velocity_mean(self) -> float:
+        """Mean of the two wheel velocities [rad/s], ``float(np.mean(wheel_velocities))`` to the bit."""
+        return mean2(*self.velocity[WHEELS_SLICE])
+
+    @property
     def torso_position(self) -> float:
         return self.position[TORSO_I]
 
@@ -241,21 +257,24 @@ class TelemetryDecoder:
                 slot[(p.device, key)] = len(slot)
         by_joint = sorted((JOINT_INDEX[(d.name, sub)], d.name, sub)
                           for d in ACTUATED for sub in range(1, len(d.joints) + 1))
-        self._axes = tuple(tuple((slot[(name, (index, sub))], scale.factor) for _, name, sub in by_joint)
-                           for index, scale in AXIS_SCALES.items())
-        self._imu = tuple((slot[(IMU.name, (index, 0))], IMU_SCALES[index].factor) for index in (
+        # the scaled values in telemetry order: 4 x 7 axis values (position, velocity, current,
+        # voltage by joint), then the IMU's 5
+        scaled = [(slot[(name, (index, sub))], scale.factor) for index, scale in AXIS_SCALES.items()
+                  for _, name, sub in by_joint]
+        scaled += [(slot[(IMU.name, (index, 0))], IMU_SCALES[index].factor) for index in (
             Index.PITCH, Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
-            Index.ACCELERATION_Z))
+            Index.ACCELERATION_Z)]
+        self._raw = itemgetter(*[i for i, _ in scaled])
+        self._factors = tuple(f for _, f in scaled)
         self._status = itemgetter(*[slot[(d, (Index.STATUS, 0))] for d in STATUS_DEVICES])
 
     def decode(self, cycle: int, frames: Mapping[int, bytes | bytearray], latency_s: float = 0.0) -> Telemetry:
         """The telemetry of one SYNC from the data of each frame by COB-ID (every one present,
         each exactly its map's size)."""
         flat = self._unpack(b"".join(self._data(frames)))
-        position, velocity, current, voltage = (tuple([flat[i] * f for i, f in axis]) for axis in self._axes)
-        pitch, pitch_rate, pitch_acc, acc_x, acc_z = (flat[i] * f for i, f in self._imu)
-        return Telemetry(cycle, position, velocity, current, voltage, pitch, pitch_rate, pitch_acc,
-                         acc_x, acc_z, self._status(flat), latency_s)
+        v = list(map(mul, self._raw(flat), self._factors))
+        return Telemetry(cycle, tuple(v[0:7]), tuple(v[7:14]), tuple(v[14:21]), tuple(v[21:28]),
+                         v[28], v[29], v[30], v[31], v[32], self._status(flat), latency_s)
 
 
 @dataclass(frozen=True)

@@ -126,9 +126,11 @@ class LiftingTask(Task[LiftingSetup]):
 
     def _at_goal(self, tel: Telemetry) -> bool:
         robot = self.robot
+        speed = robot.wheel_radius * (tel.wheel_velocity_mean + tel.pitch_rate)
+        if not abs(speed) < self.rest_speed_m_s:  # the cheap test first (both are pure)
+            return False
         h = float(robot.bottle_height(tel.arm_positions("left"), tel.arm_positions("right"), tel.pitch))
-        speed = robot.wheel_radius * (float(np.mean(tel.wheel_velocities)) + tel.pitch_rate)
-        return abs(h - self.policy.goal_height) < self.goal_tolerance_m and abs(speed) < self.rest_speed_m_s
+        return abs(h - self.policy.goal_height) < self.goal_tolerance_m
 
     def cost_terms(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> dict[str, float]:
         robot, u2 = self.robot, self.length_unit_m ** 2

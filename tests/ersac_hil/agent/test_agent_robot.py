@@ -130,3 +130,38 @@ def test_arm_pose_for_height_reaches_it():
         assert q < math.pi and x > 0  # reaching forward-up, not over the head
     with pytest.raises(ValueError):
         UBOT.arm_pose_for_height(2.0, 0.0)
+
+
+def _body_com_one_arm_at_a_time(robot, left, right, payload):
+    """The formulation before the per-cycle cut (each hand by its own numpy call, the inertia
+    always): the reference the fast path must equal to the bit."""
+    pts = [(p.mass, p.x, p.z, p.iyy) for p in robot.lower_body]
+    pts += [(p.mass, p.x, robot.torso_height + p.z, p.iyy) for p in robot.torso_parts]
+    hands = []
+    for shoulder, elbow in (left, right):
+        for link_angle, origin, parts in ((shoulder, (0.0, robot.shoulder_z), robot.upper_arm),
+                                          (shoulder + elbow, None, robot.forearm)):
+            if origin is None:
+                origin = (robot.upper_arm_length * math.sin(shoulder),
+                          robot.shoulder_z - robot.upper_arm_length * math.cos(shoulder))
+            s, c = math.sin(link_angle), math.cos(link_angle)
+            pts += [(p.mass, origin[0] + p.x * c - p.z * s, origin[1] + p.x * s + p.z * c, p.iyy) for p in parts]
+        hx, hz = robot.hand_position(shoulder, elbow, 0.0)
+        hands.append((float(hx), float(hz)))
+    if payload:
+        pts.append((payload, 0.5 * (hands[0][0] + hands[1][0]), 0.5 * (hands[0][1] + hands[1][1]), 0.0))
+    m, x, z, iyy = (np.array([q[i] for q in pts]) for i in range(4))
+    mass = m.sum()
+    cx, cz = float((m * x).sum() / mass), float((m * z).sum() / mass)
+    return cx, cz, float((iyy + m * ((x - cx) ** 2 + (z - cz) ** 2)).sum())
+
+
+joint = st.floats(-3.5, 3.5, allow_nan=False)
+
+
+@settings(max_examples=300)
+@given(st.tuples(joint, joint), st.tuples(joint, joint), st.sampled_from([0.0, 0.35, 0.62]) | st.floats(0.0, 2.0))
+def test_balance_pitch_and_body_com_are_the_formulation_arm_by_arm_to_the_bit(left, right, payload):
+    cx, cz, inertia = _body_com_one_arm_at_a_time(UBOT, left, right, payload)
+    assert [v.hex() for v in UBOT.body_com(left, right, payload)] == [cx.hex(), cz.hex(), inertia.hex()]
+    assert UBOT.balance_pitch(left, right, payload).hex() == (-math.atan2(cx, cz)).hex()

@@ -3,6 +3,9 @@ counts of every TPDO entry, and the counts ``Commands.raw`` puts in every RPDO e
 the EDS ``Factor`` of that object says (canopen's own ``decode_phys``/``encode_phys``)."""
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary.datatypes import SIGNED_TYPES
@@ -129,3 +132,20 @@ def test_command_encoder_refuses_nan_every_time():
     for _ in range(2):  # a refused value is never remembered
         with pytest.raises(ValueError):
             encoder.encode(bad)
+
+
+finite_or_not = st.floats(allow_nan=False) | st.sampled_from([0.0, -0.0, 5e-324, -5e-324, math.inf, -math.inf])
+
+
+@given(finite_or_not, finite_or_not)
+def test_the_wheel_means_are_numpys_to_the_bit(a, b):
+    """``mean2`` (the LQR's and the lifting end condition's wheel means), signed zeros included."""
+    from ersac_hil.agent.telemetry import mean2
+    with np.errstate(over="ignore", invalid="ignore"):
+        expected = float(np.mean((a, b)))
+    got = mean2(a, b)
+    assert got.hex() == expected.hex() or (math.isnan(got) and math.isnan(expected))
+    tel = Telemetry(1, (a, b, 0.0, 0.0, 0.0, 0.0, 0.0), (b, a, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0,) * 7, (0.0,) * 7,
+                    0.0, 0.0, 0.0, 0.0, 0.0, (0,) * 5)
+    assert tel.wheel_position_mean.hex() == got.hex() or math.isnan(got)
+    assert tel.wheel_velocity_mean.hex() == mean2(b, a).hex() or math.isnan(got)
