@@ -177,8 +177,8 @@ class Simulator:
         self._rig: _Rig | None = None
         self._seed = 0
         self._events: tuple[FailureEvent, ...] = ()
-        self._current = np.zeros(7)
-        self._voltage = np.zeros(7)
+        self._current = [0.0] * 7
+        self._voltage = [0.0] * 7
         self._boards: dict[str, MotorController] = {}
 
     # ---- episode --------------------------------------------------------------------------
@@ -252,7 +252,7 @@ class Simulator:
                 self._snapshot_electrical()
             step1(m, d)
         rig.imu.sample()
-        if rig.falls.update(rig.imu.truth.pitch):
+        if rig.falls.update(rig.imu.true_pitch):
             events.append(FailureEvent(FailureKind.FALLEN, d.time))
         self._events = tuple(events)
         return self._events
@@ -274,9 +274,9 @@ class Simulator:
         """Motor currents/voltages of the substep just integrated (forces and speeds at the
         same state)."""
         rig = self._require()
-        d, act = rig.physics.data, rig.physics.axes.actuator
-        self._current = rig.motors.current(d.actuator_force[act])
-        self._voltage = rig.motors.voltage(self._current, d.actuator_velocity[act])
+        d, act = rig.physics.data, rig.firmware.actuators
+        self._current = rig.motors.current(d.actuator_force[act].tolist())
+        self._voltage = rig.motors.voltage(self._current, d.actuator_velocity[act].tolist())
 
     # ---- readouts -------------------------------------------------------------------------
     @property
@@ -304,15 +304,15 @@ class Simulator:
         except ValueError:
             raise UnknownAxisError(f"unknown axis {name!r}; axes are {AXES}") from None
         d, idx = rig.physics.data, rig.physics.axes
-        return AxisState(float(d.qpos[idx.qpos[i]]), float(d.qvel[idx.dof[i]]),
-                         float(self._current[i]), float(self._voltage[i]))
+        return AxisState(float(d.qpos[idx.qpos[i]]), float(d.qvel[idx.dof[i]]), self._current[i], self._voltage[i])
 
-    def axis_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity, current and voltage of every axis, each shape ``(7,)`` in
-        ``AXES`` order (the same values as :meth:`axis`, for the telemetry hot path)."""
+    def axis_values(self) -> list[float]:
+        """Position, velocity, current and voltage of every axis (the same values as
+        :meth:`axis`, for the telemetry hot path): 28 floats, shape (4, 7) row-major, columns
+        ``AXES``."""
         rig = self._require()
         d, idx = rig.physics.data, rig.physics.axes
-        return d.qpos[idx.qpos], d.qvel[idx.dof], self._current, self._voltage
+        return [*d.qpos[idx.qpos_view].tolist(), *d.qvel[idx.dof_view].tolist(), *self._current, *self._voltage]
 
     def axis_flags(self) -> np.ndarray:
         """The boards' state flags of every axis, shape (8, 7) bool: rows in ``AxisStatus``

@@ -23,12 +23,12 @@ before ``mj_step2`` and :meth:`monitor` after it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..plant.motors import MotorBank
-from ..plant.physics import AXES, Physics
+from ..plant.physics import AXES, Physics, as_slice
 from .spline import HermiteSpline
 
 WHEELS = np.array([0, 1])
@@ -55,6 +55,31 @@ class _RunningSpline:
     q_table: np.ndarray       # (N, k) motor-side position setpoints (G q_ref)
     qd_table: np.ndarray      # (N, k) motor-side velocity setpoints (G qd_ref)
     start_tick: int
+    ticks: int = field(init=False)                # N
+    block: slice | None = field(init=False)       # the ctrl addresses as one slice (pos, vel, pos, ...)
+    table: np.ndarray | None = field(init=False)  # (N, 2k) q_table and qd_table interleaved so
+
+    def __post_init__(self) -> None:
+        self.ticks = len(self.q_table)
+        self.block = ctrl_block(self.pos_ctrl, self.vel_ctrl)
+        self.table = None if self.block is None else interleave(self.q_table, self.qd_table)
+
+
+def ctrl_block(pos_ctrl: np.ndarray, vel_ctrl: np.ndarray) -> slice | None:
+    """The slice of ``ctrl`` that holds exactly the inputs ``pos_ctrl[0], vel_ctrl[0],
+    pos_ctrl[1], vel_ctrl[1], ...`` in this order (each shape (k,)), or ``None`` when they are
+    not contiguous that way."""
+    block = as_slice(np.stack([pos_ctrl, vel_ctrl], axis=1).ravel())
+    return block if isinstance(block, slice) else None
+
+
+def interleave(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Columns of ``a`` and ``b`` (each shape (N, k)) alternating: shape (N, 2k),
+    ``a[:, 0], b[:, 0], a[:, 1], ...`` (the values copied, not computed)."""
+    out = np.empty((a.shape[0], 2 * a.shape[1]), dtype=np.result_type(a, b))
+    out[:, 0::2] = a
+    out[:, 1::2] = b
+    return out
 
 
 class Firmware:
@@ -66,11 +91,11 @@ class Firmware:
         self.dt = physics.timestep
         idx = physics.axes
         self._act = idx.actuator
-        a0 = int(idx.actuator[0])
-        contiguous = np.array_equal(idx.actuator, np.arange(a0, a0 + 7))
-        self._act_view = slice(a0, a0 + 7) if contiguous else idx.actuator
+        self.actuators = as_slice(idx.actuator)
+        """The seven axes' actuators: a slice where their ids are contiguous (a view of MuJoCo's
+        actuator arrays, no copy), else the id array (shape (7,), ``AXES`` order)."""
         # the seven actuator forces as a view into MuJoCo's data (read every substep)
-        self._force = physics.data.actuator_force[self._act_view] if contiguous else None
+        self._force = physics.data.actuator_force[self.actuators] if isinstance(self.actuators, slice) else None
         self._abs_force = np.zeros(7)
         self._dof = idx.dof
         self._qpos = idx.qpos
@@ -254,9 +279,12 @@ class Firmware:
         tick = self.tick
         for s in tuple(self._splines):
             j = tick - s.start_tick
-            if j < len(s.q_table):
-                ctrl[s.pos_ctrl] = s.q_table[j]
-                ctrl[s.vel_ctrl] = s.qd_table[j]
+            if j < s.ticks:
+                if s.block is not None:  # one slice write (the same values)
+                    ctrl[s.block] = s.table[j]
+                else:
+                    ctrl[s.pos_ctrl] = s.q_table[j]
+                    ctrl[s.vel_ctrl] = s.qd_table[j]
             else:
                 self._finish(s, completed=True)
 
@@ -264,7 +292,7 @@ class Firmware:
         """After a substep: current limiting and over-current timing. Returns the axes whose
         over-current fault latched in this substep."""
         self.tick += 1
-        force = self._force if self._force is not None else self.physics.data.actuator_force[self._act_view]
+        force = self._force if self._force is not None else self.physics.data.actuator_force[self.actuators]
         if not self._counting:  # no axis was limiting (the flags are all clear): scalar check first
             for f, threshold in zip(force.tolist(), self._sat_threshold_list):
                 if abs(f) >= threshold:

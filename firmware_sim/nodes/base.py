@@ -32,8 +32,10 @@ from protocol.can import cobid
 from protocol.can.devices import AGENT_NODE_ID, Device, object_dictionary
 from protocol.can.nmt import INITIALISING, OPERATIONAL, PRE_OPERATIONAL
 from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
-from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
+from protocol.can.pdo import pdo_maps, pdo_struct
 from protocol.can.sdo import check_range
+
+from firmware_sim.nodes.inbox import RpdoInbox
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +161,7 @@ class SlaveNode(canopen.LocalNode):
         self.add_read_callback(self._on_sdo_read)
         self._lock = threading.RLock()
         self._values: dict[Key, int] = {}
-        self._pending: dict[Key, int] = {}
+        self._inbox = RpdoInbox(())
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._agent_last_hb: float | None = None
@@ -175,13 +177,15 @@ class SlaveNode(canopen.LocalNode):
         self.tpdo.read(from_od=True)
         self.rpdo.read(from_od=True)
         specs = {(p.direction, p.number): p for p in pdo_maps(self.device)}
-        # cyclic PDOs bypass canopen's per-variable machinery: one struct per frame
-        for number, pdo_map in self.rpdo.map.items():
-            if pdo_map.enabled and pdo_map.cob_id:
-                network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
-                handler = self._rpdo_handler(specs[("rpdo", number)])
-                network.subscribe(pdo_map.cob_id, handler)
-                self._rpdo_handlers.append((pdo_map.cob_id, handler))
+        # cyclic PDOs bypass canopen's per-variable machinery: frames kept whole until SYNC
+        rpdos = [(pdo_map, specs[("rpdo", number)]) for number, pdo_map in self.rpdo.map.items()
+                 if pdo_map.enabled and pdo_map.cob_id]
+        self._inbox = RpdoInbox([spec for _, spec in rpdos])
+        for slot, (pdo_map, _) in enumerate(rpdos):
+            network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
+            handler = self._rpdo_handler(slot)
+            network.subscribe(pdo_map.cob_id, handler)
+            self._rpdo_handlers.append((pdo_map.cob_id, handler))
         self._layouts = [TpdoLayout(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, tuple_getter(spec.keys))
                          for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
                          if m.enabled and 1 <= (m.trans_type or 0) <= 240]
@@ -222,7 +226,8 @@ class SlaveNode(canopen.LocalNode):
 
     def _after_reset(self, full: bool) -> None:
         with self._lock:
-            self._pending.clear()
+            self._inbox.discard()
+            self._inbox.forget_applied()
             if full:
                 self.data_store.clear()
                 self._values.clear()
@@ -239,12 +244,16 @@ class SlaveNode(canopen.LocalNode):
     # -- application state ---------------------------------------------------------------
     def set_value(self, index: int, subindex: int, raw: int) -> None:
         """Telemetry/application value of an object (what SDO uploads and TPDOs carry)."""
-        self._values[(index, subindex)] = raw
+        key = (index, subindex)
+        if key in self._inbox.keys:  # an RPDO-mapped object: its next frame is compared anew
+            self._inbox.forget_applied()
+        self._values[key] = raw
 
     @property
     def values(self) -> dict[Key, int]:
         """The application values by (index, sub-index), live (``set_value`` in bulk: an
-        application's ``sample`` fills it while the node's lock is held)."""
+        application's ``sample`` fills it while the node's lock is held; RPDO-mapped objects
+        are written only by ``apply_commands`` and ``set_value``)."""
         return self._values
 
     def received(self, index: int, subindex: int = 0) -> int | None:
@@ -263,7 +272,8 @@ class SlaveNode(canopen.LocalNode):
         """Power-on state of the application (commands forgotten, defaults back) without an
         NMT reset: what a simulated robot does when it starts a new scenario."""
         with self._lock:
-            self._pending.clear()
+            self._inbox.discard()
+            self._inbox.forget_applied()
             for pdo_map in self.rpdo.map.values():
                 for var in pdo_map.map:
                     self._values.pop((var.index, var.subindex), None)
@@ -282,13 +292,16 @@ class SlaveNode(canopen.LocalNode):
 
     # -- SYNC-driven cycle -----------------------------------------------------------------
     def apply_commands(self) -> None:
-        """Make the RPDO values received since the last SYNC take effect."""
+        """Make the RPDO values received since the last SYNC take effect (the application
+        hears of those that changed)."""
+        inbox = self._inbox
+        if not inbox.pending:
+            return
         with self._lock:
-            pending, self._pending = self._pending, {}
-            if not self.operational or not pending:
+            if not self.operational:
+                inbox.discard()
                 return
-            changed = {k: v for k, v in pending.items() if self._values.get(k) != v}
-            self._values.update(pending)
+            changed = inbox.take(self._values)
         if changed:
             self.app.on_commands(changed)
 
@@ -334,16 +347,16 @@ class SlaveNode(canopen.LocalNode):
         self.apply_commands()
         self.transmit_tpdos()
 
-    def _rpdo_handler(self, spec: PdoSpec):
-        """Receive one RPDO: unpack it whole into the pending commands (applied at SYNC)."""
-        layout, keys = pdo_struct(spec), spec.keys
-        unpack, size = layout.unpack_from, layout.size
+    def _rpdo_handler(self, slot: int):
+        """Receive RPDO ``slot`` of the inbox: its frame kept whole until the SYNC."""
+        size, store, lock = self._inbox.sizes[slot], self._inbox.store, self._lock
 
         def on_frame(can_id, data, timestamp) -> None:
-            if not self.operational or len(data) < size:
+            if self.nmt._state != OPERATIONAL or len(data) < size:
                 return
-            with self._lock:
-                self._pending.update(zip(keys, unpack(data)))
+            frame = bytes(data)
+            with lock:
+                store(slot, frame)
         return on_frame
 
     # -- SDO server hooks ------------------------------------------------------------------

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -45,9 +46,11 @@ _AXIS_SCALES = tuple(tuple(scale if index != Index.POSITION else (o.WHEEL_POSITI
                      for index, scale in zip(_AXIS_INDEXES, (None, o.VELOCITY, o.CURRENT, o.VOLTAGE)))
 """Scale of each axis telemetry object, shape (4, 7): rows ``_AXIS_INDEXES``, columns ``AXES``
 (the wheels' position is a 32-bit count)."""
-_FACTOR = np.array([[s.factor for s in row] for row in _AXIS_SCALES])
-_RAW_MIN = np.array([[s.raw_min for s in row] for row in _AXIS_SCALES], dtype=float)
-_RAW_MAX = np.array([[s.raw_max for s in row] for row in _AXIS_SCALES], dtype=float)
+CountScale = tuple[float, int, int]
+"""A ``Scale`` as ``count`` uses it: (factor, raw_min, raw_max)."""
+_AXIS_COUNT_SCALES: tuple[CountScale, ...] = tuple((s.factor, s.raw_min, s.raw_max)
+                                                   for row in _AXIS_SCALES for s in row)
+"""``_AXIS_SCALES`` row-major, 28 entries."""
 
 SCENARIO_NAMES = {o.Scenario.IDLE: "idle", o.Scenario.BRACING: "bracing", o.Scenario.LIFTING: "lifting"}
 
@@ -59,6 +62,7 @@ def _raw(scale: o.Scale, value: float, missing: int = 0) -> int:
 _IMU_INDEXES = (Index.PITCH, Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
                 Index.ACCELERATION_Z)
 _IMU_SCALES = (o.PITCH, o.PITCH_RATE, o.PITCH_ACCELERATION, o.ACCELERATION, o.ACCELERATION)
+_IMU_COUNT_SCALES: tuple[CountScale, ...] = tuple((s.factor, s.raw_min, s.raw_max) for s in _IMU_SCALES)
 IMU_SLOT = len(_AXIS_INDEXES) * len(AXES)
 """Where the IMU's counts start in a telemetry row (after the axes' counts)."""
 STATUS_SLOT = IMU_SLOT + len(_IMU_INDEXES)
@@ -77,40 +81,67 @@ class AxisCounts:
 
     Attributes:
         values: position, velocity, current and voltage counts (``Scale.to_raw`` of each
-            value, computed for all axes at once), 28 ints: shape (4, 7) row-major, rows
-            ``_AXIS_INDEXES``, columns ``AXES`` (``axis_slot`` gives the place of one).
+            value), 28 ints: shape (4, 7) row-major, rows ``_AXIS_INDEXES``, columns ``AXES``
+            (``axis_slot`` gives the place of one).
         words: status-word bits of each axis's board flags, 7 ints (a board ORs its axes').
     """
     values: list[int]
-    words: list[int]
+    words: tuple[int, ...]
 
     @classmethod
     def sample(cls, sim: Simulator) -> "AxisCounts":
         """From the simulator's present state. ``ValueError`` on a NaN (as ``Scale.to_raw``)."""
-        packed = np.packbits(sim.axis_flags(), axis=0, bitorder="little")[0]
-        return cls(axis_counts(np.array(sim.axis_arrays())), _WORD_OF[packed].tolist())
+        return cls(axis_counts(sim.axis_values()), _WORDS.of(sim.axis_flags()))
 
 
-def axis_counts(values: np.ndarray) -> list[int]:
-    """``Scale.to_raw`` of every axis value at once: ``values`` shape (4, 7), rows
-    ``_AXIS_INDEXES``, columns ``AXES``, SI units (overwritten); returned row-major, 28 ints.
-    Bit for bit what ``to_raw`` gives each value, ``ValueError`` on a NaN like it."""
-    np.divide(values, _FACTOR, out=values)                  # the same division as to_raw
-    if math.isnan(values.min()):                            # min propagates a NaN
-        raise ValueError("cannot encode NaN")
-    # round half to even like round(); saturation like to_raw (>= max -> max, <= min -> min)
-    np.rint(values, out=values)
-    np.maximum(values, _RAW_MIN, out=values)
-    np.minimum(values, _RAW_MAX, out=values)
-    return values.astype(np.int64).ravel().tolist()
+def counts(values: Iterable[float], scales: Iterable[CountScale]) -> list[int]:
+    """``Scale.to_raw`` of each value by its scale, bit for bit (the same division, the same
+    saturation, ``round``); ``ValueError`` on a NaN like it."""
+    out: list[int] = []
+    append = out.append
+    for value, (factor, low, high) in zip(values, scales):
+        scaled = value / factor
+        append(high if scaled >= high else low if scaled <= low else round(scaled))  # NaN: round raises
+    return out
+
+
+def axis_counts(values: Sequence[float]) -> list[int]:
+    """``Scale.to_raw`` of every axis value: ``values`` 28 floats, SI units, shape (4, 7)
+    row-major (rows ``_AXIS_INDEXES``, columns ``AXES``, as ``Simulator.axis_values``);
+    returned in the same order."""
+    return counts(values, _AXIS_COUNT_SCALES)
+
+
+class _WordTable:
+    """Status-word bits of each axis by the boards' flags (``Simulator.axis_flags``, shape
+    (8, 7) bool), remembered by the flags' bytes: they change seldom (enable, limits, faults)."""
+
+    LIMIT = 4096
+    """Distinct flag states kept (the table starts afresh beyond)."""
+
+    def __init__(self) -> None:
+        self._words: dict[bytes, tuple[int, ...]] = {}
+
+    def of(self, flags: np.ndarray) -> tuple[int, ...]:
+        key = flags.tobytes()
+        words = self._words.get(key)
+        if words is None:
+            if len(self._words) >= self.LIMIT:
+                self._words.clear()
+            packed = np.packbits(flags, axis=0, bitorder="little")[0]
+            words = self._words[key] = tuple(_WORD_OF[packed].tolist())
+        return words
+
+
+_WORDS = _WordTable()
 
 
 def telemetry_row(axes: AxisCounts, imu: ImuSample) -> list[int]:
     """Every telemetry count of the robot at one instant: the axes' counts, the IMU's
     (``_IMU_INDEXES`` order, from ``IMU_SLOT``) and a slot for a status word (``STATUS_SLOT``,
     0 here; the sampling device writes its own), 34 ints."""
-    return [*axes.values, *(scale.to_raw(v) for scale, v in zip(_IMU_SCALES, (
-        imu.pitch, imu.pitch_rate, imu.pitch_acc, imu.acc_x, imu.acc_z))), 0]
+    return [*axes.values, *counts((imu.pitch, imu.pitch_rate, imu.pitch_acc, imu.acc_x, imu.acc_z),
+                                  _IMU_COUNT_SCALES), 0]
 
 
 class Host(Protocol):
@@ -231,13 +262,21 @@ class DeviceApp(NodeApplication):
         return None
 
 
+_TORQUE_LEFT, _TORQUE_RIGHT = (Index.TORQUE_COMMAND, 1), (Index.TORQUE_COMMAND, 2)
+
+
+def _wheel_torque(raw: int) -> float:
+    """N m of a torque-command count, clamped to the wheel drivers' +-20 N m."""
+    return max(-20.0, min(20.0, o.TORQUE.from_raw(raw)))
+
+
 class WheelsApp(DeviceApp):
     def on_commands(self, changed: dict[Key, int]) -> None:
         super().on_commands(changed)
-        if (Index.TORQUE_COMMAND, 1) in changed or (Index.TORQUE_COMMAND, 2) in changed:
-            left, right = (max(-20.0, min(20.0, o.TORQUE.from_raw(int(self.node.value(Index.TORQUE_COMMAND, s)))))
-                           for s in (1, 2))
-            self.host.sim.set_wheel_torque(left, right)
+        if _TORQUE_LEFT in changed or _TORQUE_RIGHT in changed:
+            value = self.node.value
+            self.host.sim.set_wheel_torque(_wheel_torque(int(value(*_TORQUE_LEFT))),
+                                           _wheel_torque(int(value(*_TORQUE_RIGHT))))
 
 
 

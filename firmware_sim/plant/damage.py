@@ -72,30 +72,35 @@ class ElbowCables:
         self.reset()
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
-        """New episode: intact cables; their strengths drawn from ``rng`` (CableSpec)."""
+        """New episode: intact cables; their strengths drawn from ``rng`` (CableSpec).
+
+        ``tension`` and ``peak`` (N, now and the episode's peak) and ``strength`` are two floats
+        each, index 0 left, 1 right (plain floats: updated every substep); ``broken`` shape (2,)
+        bool."""
         self._physics.model.dof_armature[self._dof] = self._armature0
-        self.strength = self.spec.draw_strengths(rng)
-        self.tension = np.full(2, self.spec.pretension)
-        self.peak = self.tension.copy()
+        self.strength = self.spec.draw_strengths(rng).tolist()
+        self.tension = [self.spec.pretension] * 2
+        self.peak = list(self.tension)
         self.broken = np.zeros(2, dtype=bool)
         self._intact = [True, True]
 
     def update(self, actuator_force: np.ndarray) -> tuple[int, ...]:
         """After a substep: tension from the applied motor torques (MuJoCo's actuator_force);
         returns the sides (0 left, 1 right) that broke in this substep."""
-        spec, snapped = self.spec, ()
+        pretension, snapped = self.spec.pretension, ()
+        tension, peak, strength = self.tension, self.peak, self.strength
         for side in (0, 1):
             if not self._intact[side]:
                 continue
-            t = abs(float(actuator_force[self._act[side]])) * self._scale[side] + spec.pretension
-            self.tension[side] = t
-            if t > self.peak[side]:
-                self.peak[side] = t
-            if t > self.strength[side]:
+            t = abs(float(actuator_force[self._act[side]])) * self._scale[side] + pretension
+            tension[side] = t
+            if t > peak[side]:
+                peak[side] = t
+            if t > strength[side]:
                 snapped += (side,)
                 self._intact[side] = False
                 self.broken[side] = True
-                self.tension[side] = 0.0
+                tension[side] = 0.0
                 # the rotor and gearbox are no longer coupled to the forearm
                 self._physics.model.dof_armature[self._dof[side]] = 0.0
         return snapped

@@ -76,8 +76,15 @@ class Imu:
         self._rng = np.random.default_rng(0)
         self._prev_rate = 0.0
         self._prev_noisy_rate = 0.0
-        self.truth = ImuSample(0.0, 0.0, 0.0, 0.0, 0.0)
-        self.latest = self.truth
+        self._true = (0.0, 0.0, 0.0, 0.0, 0.0)
+        self.true_pitch = 0.0
+        """The noise-free pitch of the last reading (rad; ``truth.pitch`` without building it)."""
+        self.latest = ImuSample(*self._true)
+
+    @property
+    def truth(self) -> ImuSample:
+        """The noise-free values of the last reading (built when asked: rarely)."""
+        return ImuSample(*self._true)
 
     def reset(self, rng: np.random.Generator) -> None:
         """Start of an episode: zero angular-acceleration history, noise stream ``rng``."""
@@ -87,17 +94,19 @@ class Imu:
 
     def sample(self) -> ImuSample:
         """Take the end-of-period reading; updates ``truth`` (noise-free) and ``latest``."""
-        d = self._physics.data
-        sensors = d.sensordata
+        sensors = self._physics.data.sensordata
+        period = self._period
         rate = float(sensors[self._gyro_y])
-        alpha = (rate - self._prev_rate) / self._period
+        alpha = (rate - self._prev_rate) / period
         self._prev_rate = rate
-        true = (self._physics.body_pitch(), rate, alpha,
-                float(sensors[self._acc_x]), float(sensors[self._acc_z]))
-        noise = self._rng.standard_normal(5).tolist()
-        self.truth = ImuSample(*true)
-        pitch, noisy_rate, _, acc_x, acc_z = (v + s * n for v, s, n in zip(true, self._sigma, noise))
-        noisy_alpha = (noisy_rate - self._prev_noisy_rate) / self._period + self._sigma[2] * noise[2]
+        pitch, acc_x, acc_z = self._physics.body_pitch(), float(sensors[self._acc_x]), float(sensors[self._acc_z])
+        n_pitch, n_rate, n_alpha, n_acc_x, n_acc_z = self._rng.standard_normal(5).tolist()
+        s_pitch, s_rate, s_alpha, s_acc_x, s_acc_z = self._sigma
+        self._true = (pitch, rate, alpha, acc_x, acc_z)
+        self.true_pitch = pitch
+        noisy_rate = rate + s_rate * n_rate
+        noisy_alpha = (noisy_rate - self._prev_noisy_rate) / period + s_alpha * n_alpha
         self._prev_noisy_rate = noisy_rate
-        self.latest = ImuSample(pitch, noisy_rate, noisy_alpha, acc_x, acc_z)
+        self.latest = ImuSample(pitch + s_pitch * n_pitch, noisy_rate, noisy_alpha,
+                                acc_x + s_acc_x * n_acc_x, acc_z + s_acc_z * n_acc_z)
         return self.latest

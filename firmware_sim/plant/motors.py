@@ -11,6 +11,7 @@ inertia is the joint armature divided by G^2. ubot.xml uses Kt = Ke (SI units).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -68,9 +69,11 @@ def read_motor_params(model: mujoco.MjModel) -> dict[str, MotorParams]:
 
 
 class MotorBank:
-    """Vectorised electrical readouts of the seven motors (arrays of shape (7,), ``AXES`` order).
+    """Electrical readouts of the seven motors, ``AXES`` order.
 
-    ``current`` and ``voltage`` take MuJoCo's actuator arrays (motor-side torque and speed).
+    ``current`` and ``voltage`` take MuJoCo's actuator values (motor-side torque and speed) as
+    seven floats and compute axis by axis (what a whole-array formula gives, bit for bit: the
+    same IEEE operations in the same order); the constants are arrays of shape (7,).
     """
 
     def __init__(self, params: dict[str, MotorParams]) -> None:
@@ -81,11 +84,12 @@ class MotorBank:
         self.gear = np.array([params[a].gear for a in AXES])
         self.current_limit = np.array([params[a].current_limit for a in AXES])
         self.supply_voltage = np.array([params[a].supply_voltage for a in AXES])
+        self._kt, self._ke, self._r = self.kt.tolist(), self.ke.tolist(), self.resistance.tolist()
 
-    def current(self, motor_torque: np.ndarray) -> np.ndarray:
-        """Winding current (A) from the motor-side torque (N m), shape (7,)."""
-        return motor_torque / self.kt
+    def current(self, motor_torque: Sequence[float]) -> list[float]:
+        """Winding current (A) from the motor-side torque (N m), 7 floats."""
+        return [torque / kt for torque, kt in zip(motor_torque, self._kt)]
 
-    def voltage(self, current: np.ndarray, motor_speed: np.ndarray) -> np.ndarray:
-        """Terminal voltage (V) = I R + Ke omega_motor, shape (7,)."""
-        return current * self.resistance + self.ke * motor_speed
+    def voltage(self, current: Sequence[float], motor_speed: Sequence[float]) -> list[float]:
+        """Terminal voltage (V) = I R + Ke omega_motor, 7 floats."""
+        return [i * r + ke * w for i, r, ke, w in zip(current, self._r, self._ke, motor_speed)]

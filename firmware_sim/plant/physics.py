@@ -16,6 +16,7 @@ positions and velocities::
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +59,16 @@ class AxisIndex:
     actuator: np.ndarray
     ctrl: np.ndarray
 
+    @functools.cached_property
+    def qpos_view(self) -> slice | np.ndarray:
+        """``qpos`` as a slice where the addresses are contiguous (indexing gives a view)."""
+        return as_slice(self.qpos)
+
+    @functools.cached_property
+    def dof_view(self) -> slice | np.ndarray:
+        """``dof`` as a slice where the addresses are contiguous (indexing gives a view)."""
+        return as_slice(self.dof)
+
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> "AxisIndex":
         qpos, dof, act, ctrl = [], [], [], []
@@ -71,6 +82,15 @@ class AxisIndex:
             act.append(aid)
             ctrl.append(model.actuator_ctrladr[aid])
         return cls(*(np.asarray(a, dtype=np.intp) for a in (qpos, dof, act, ctrl)))
+
+
+def as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` (shape (n,)) as the slice it spans when its entries are consecutive and
+    ascending (indexing with it selects the same elements, as a view), else ``index`` itself."""
+    start = int(index[0]) if len(index) else 0
+    if len(index) and np.array_equal(index, np.arange(start, start + len(index))):
+        return slice(start, start + len(index))
+    return index
 
 
 class Physics:

@@ -281,3 +281,27 @@ def test_over_current_monitor_agrees_with_whole_array_operations(shared, ratios,
         assert np.array_equal(fw.current_limiting, limiting)
         assert np.array_equal(fw._sat_count, count)
         assert np.array_equal(fw.over_current, over)
+
+
+@settings(max_examples=200)
+@given(k=st.integers(1, 3), start=st.integers(0, 4), rows=st.integers(1, 4), seed=st.integers(0, 2 ** 32 - 1),
+       gap=st.booleans())
+def test_a_spline_written_as_one_slice_writes_what_two_fancy_writes_write(k, start, rows, seed, gap):
+    # the firmware writes a running spline's pos and vel inputs as one slice where they
+    # interleave (pos, vel, pos, vel ...): the same ctrl, bit for bit, as the two index writes
+    from firmware_sim.controllers.firmware import ctrl_block, interleave
+    rng = np.random.default_rng(seed)
+    pos_ctrl = start + 2 * np.arange(k) + (np.arange(k) > 0) * 2 * gap
+    vel_ctrl = pos_ctrl + 1
+    q, qd = rng.standard_normal((rows, k)) * 1e3, rng.standard_normal((rows, k))
+    block = ctrl_block(pos_ctrl, vel_ctrl)
+    assert (block is None) == (gap and k > 1)
+    if block is None:
+        return
+    table = interleave(q, qd)
+    for j in range(rows):
+        fancy, sliced = np.full(12, np.nan), np.full(12, np.nan)
+        fancy[pos_ctrl] = q[j]
+        fancy[vel_ctrl] = qd[j]
+        sliced[block] = table[j]
+        assert fancy.tobytes() == sliced.tobytes()

@@ -2,9 +2,12 @@
 saturation, supply clamp and the over-current fault (open loop, real MuJoCo)."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from firmware_sim.plant import read_motor_params
+from firmware_sim.plant import MotorBank, read_motor_params
 from firmware_sim.simulator import FailureKind, Simulator
 
 
@@ -80,3 +83,25 @@ def test_supply_voltage_bounds_the_speed():
         assert abs(a.voltage) <= p.supply_voltage + 1e-9
         top = max(top, a.velocity)
     assert 0.5 * p.no_load_speed < top <= p.no_load_speed
+
+
+_SEVEN = st.lists(st.one_of(st.floats(-1e3, 1e3), st.floats(allow_nan=True, allow_infinity=True)),
+                  min_size=7, max_size=7)
+
+
+@pytest.fixture(scope="module")
+def bank() -> MotorBank:
+    s = Simulator()
+    s.reset("idle", 0)
+    return MotorBank(read_motor_params(s.physics.model))
+
+
+@settings(max_examples=200)
+@given(torque=_SEVEN, speed=_SEVEN)
+def test_the_motor_readouts_axis_by_axis_are_the_whole_array_formula_bit_for_bit(bank, torque, speed):
+    # current and voltage are computed value by value: exactly what the array formula gives
+    with np.errstate(all="ignore"):  # overflow to inf, inf - inf: what the values give
+        current = np.array(torque) / bank.kt
+        voltage = current * bank.resistance + bank.ke * np.array(speed)
+    assert np.array(bank.current(torque)).tobytes() == current.tobytes()
+    assert np.array(bank.voltage(bank.current(torque), speed)).tobytes() == voltage.tobytes()
