@@ -1,9 +1,11 @@
 """Where the time goes in lock-step episodes: py-spy on the simulator, the agent and the CAN hub.
 
-    python bench/profile_stack.py [--bus remote|zenoh] [--seconds 20] [--out DIR]
+    python bench/profile_stack.py [--bus remote|zenoh|direct] [--seconds 20] [--out DIR]
 
 Starts the stack as deployed (embedded Zenoh router in this process; the CAN transport, the
-simulator ``python -m firmware_sim`` and the agent ``ersac-hil agent`` as separate processes),
+simulator ``python -m firmware_sim`` and the agent ``ersac-hil agent`` as separate processes;
+``--bus direct``: CAN over Zenoh on a direct link, the simulator's bus listening and the
+agent's connected to it, as ``ersac-hil demo`` runs them),
 runs bracing episodes from a Zenoh client, and samples every process with
 ``py-spy record --nonblocking --gil --format raw`` (only threads holding the GIL, i.e. Python CPU
 work, 250 Hz) for ``--seconds``.
@@ -31,7 +33,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from episode import KS, ROBOT, wait_for_agent  # noqa: E402
+from episode import DIRECT, KS, ROBOT, wait_for_agent  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter, free_tcp_port  # noqa: E402
 from protocol.zenoh import EpisodeRequest  # noqa: E402
 
@@ -44,6 +46,8 @@ INTEREST = [
     ("agent: episode loop", r"^EpisodeRunner\._loop \("),
     ("agent: LQR torque", r"^BalanceController\.torque \("),
     ("sim: axis counts (all boards)", r"^AxisCounts\.sample \("),
+    ("sim: RPDO frames received", r"^SlaveNode\._rpdo_handler\.<locals>\.on_frame \("),
+    ("sim: RPDOs applied at SYNC", r"^SlaveNode\.apply_commands \("),
     ("agent: Telemetry.decode", r"^Telemetry(Decoder)?\.decode \("),
     ("agent: TPDO callback", r"^AgentBus\._(on_tpdo|tpdo_handler\.<locals>\.on_frame) \("),
     ("agent: cost terms + result", r"^EpisodeRunner\._result \("),
@@ -100,7 +104,7 @@ def analyse(raw: Path, top: int = 12) -> str:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bus", choices=("remote", "zenoh"), default="remote")
+    ap.add_argument("--bus", choices=("remote", "zenoh", DIRECT), default="remote")
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--rate", type=int, default=250)
     ap.add_argument("--out", type=Path, default=None, help="keep the raw stacks here")
@@ -115,15 +119,20 @@ def main() -> int:
     procs: dict[str, subprocess.Popen] = {}
     try:
         with EmbeddedRouter() as router:
+            sim_bus = None
             if args.bus == "remote":
                 port = free_tcp_port()
                 procs["hub"] = _spawn([*cli, "bus", "--port", str(port)])
                 _readline_until(procs["hub"], r"CAN hub: ws://")
                 bus = ["--bus-interface", "remote", "--bus-channel", f"ws://127.0.0.1:{port}/"]
+            elif args.bus == DIRECT:  # the simulator listens, the agent connects to it
+                name, listen = f"profile-{uuid.uuid4().hex[:6]}", f"tcp/127.0.0.1:{free_tcp_port()}"
+                sim_bus = ["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}"]
+                bus = ["--bus-interface", "zenoh", "--bus-channel", f"{name}@{listen}"]
             else:
                 bus = ["--bus-interface", "zenoh", "--bus-channel",
                        f"profile-{uuid.uuid4().hex[:6]}@{router.endpoint}"]
-            procs["sim"] = _spawn([sys.executable, "-m", "firmware_sim", *bus])
+            procs["sim"] = _spawn([sys.executable, "-m", "firmware_sim", *(sim_bus or bus)])
             _readline_until(procs["sim"], r"simulator: ")
             procs["agent"] = _spawn([*cli, "agent", "--robot", ROBOT, *bus, "--zenoh", router.endpoint])
             _readline_until(procs["agent"], r"agent ready")

@@ -63,3 +63,11 @@ def test_one_sampler_packs_what_each_node_packs(robot, scenario, seed, periods, 
         TpdoSampler(tuple(robot.nodes.values())).pack(telemetry_row(axes, robot.sim.imu()), axes, got)
     assert got == expected
     assert len(got) == sum(len(n.tpdo_layouts) for n in robot.nodes.values() if n.operational)
+
+
+def test_the_robot_packs_each_node_s_tpdos_at_once(robot):
+    # every TPDO of the simulated robot goes out at every SYNC: each node's frames come from one
+    # struct (the comparison above checks them against the node's own, frame by frame)
+    plans = TpdoSampler(tuple(robot.nodes.values()))._plans
+    assert plans and all(plan.whole is not None for plan in plans)
+    assert sum(len(plan.cuts) for plan in plans) == sum(len(n.tpdo_layouts) for n in robot.nodes.values())
