@@ -14,9 +14,11 @@ Sampled once per control period (at SYNC):
 - ``acc_x``, ``acc_z`` = the accelerometer (proper acceleration, body frame; +9.81 on z at
   rest) from the last physics substep.
 
-The noise generator is handed in by the simulator (spawned from the scenario seed) and draws
-exactly five normals per sample whether or not anyone reads it, so telemetry is bit-identical
-for the same seed and command sequence.
+The noise generator is handed in by the simulator (spawned from the scenario seed, the IMU's
+alone) and draws exactly five normals per sample whether or not anyone reads it, so telemetry
+is bit-identical for the same seed and command sequence. They are drawn ``NOISE_BLOCK`` samples
+at a time: a generator's normals come one after the other whatever the size of a draw, so
+sample k gets the same five as with a draw of five per sample.
 """
 from __future__ import annotations
 
@@ -61,6 +63,10 @@ class ImuNoise:
         return np.array([self.pitch, self.pitch_rate, self.pitch_acc, self.acc, self.acc])
 
 
+NOISE_BLOCK = 64
+"""Samples whose noise is drawn at once."""
+
+
 class Imu:
     """IMU model bound to one Physics. Call :meth:`reset` after the episode's initial state is
     set and :meth:`sample` once per control period."""
@@ -74,6 +80,8 @@ class Imu:
         acc_adr = int(m.sensor_adr[m.sensor("imu_acc").id])
         self._acc_x, self._acc_z = acc_adr, acc_adr + 2
         self._rng = np.random.default_rng(0)
+        self._noise: list[float] = []
+        self._noise_at = 0
         self._prev_rate = 0.0
         self._prev_noisy_rate = 0.0
         self._true = (0.0, 0.0, 0.0, 0.0, 0.0)
@@ -89,6 +97,7 @@ class Imu:
     def reset(self, rng: np.random.Generator) -> None:
         """Start of an episode: zero angular-acceleration history, noise stream ``rng``."""
         self._rng = rng
+        self._noise, self._noise_at = [], 0
         self._prev_rate = self._prev_noisy_rate = float(self._physics.data.sensordata[self._gyro_y])
         self.sample()
 
@@ -100,7 +109,11 @@ class Imu:
         alpha = (rate - self._prev_rate) / period
         self._prev_rate = rate
         pitch, acc_x, acc_z = self._physics.body_pitch(), float(sensors[self._acc_x]), float(sensors[self._acc_z])
-        n_pitch, n_rate, n_alpha, n_acc_x, n_acc_z = self._rng.standard_normal(5).tolist()
+        at = self._noise_at
+        if at == len(self._noise):
+            self._noise, at = self._rng.standard_normal(5 * NOISE_BLOCK).tolist(), 0
+        n_pitch, n_rate, n_alpha, n_acc_x, n_acc_z = self._noise[at:at + 5]
+        self._noise_at = at + 5
         s_pitch, s_rate, s_alpha, s_acc_x, s_acc_z = self._sigma
         self._true = (pitch, rate, alpha, acc_x, acc_z)
         self.true_pitch = pitch
