@@ -115,10 +115,14 @@ class RobotParameters:
         (arrays of shape ``(n,)`` or scalars)."""
         shoulder, elbow, pitch = (np.asarray(a, dtype=float) for a in (shoulder, elbow, pitch))
         a1, a2 = shoulder - pitch, shoulder + elbow - pitch
-        x = (self.shoulder_z * np.sin(pitch) + self.upper_arm_length * np.sin(a1)
-             + self.hand_offset * np.sin(a2))
-        z = (self.shoulder_z * np.cos(pitch) - self.upper_arm_length * np.cos(a1)
-             - self.hand_offset * np.cos(a2))
+        return self._hand(np.sin(pitch), np.cos(pitch), np.sin(a1), np.cos(a1), np.sin(a2), np.cos(a2))
+
+    def _hand(self, sin_p, cos_p, sin_1, cos_1, sin_2, cos_2):  # noqa: ANN001, ANN202 - arrays or floats
+        """``hand_position`` from the sines and cosines of the pitch, the upper arm's angle
+        ``q_s - alpha`` and the forearm's ``q_s + q_e - alpha`` (the same operations whether
+        arrays or floats)."""
+        x = self.shoulder_z * sin_p + self.upper_arm_length * sin_1 + self.hand_offset * sin_2
+        z = self.shoulder_z * cos_p - self.upper_arm_length * cos_1 - self.hand_offset * cos_2
         return x, z
 
     def bottle_height(self, left, right, pitch) -> np.ndarray:
@@ -178,10 +182,13 @@ class RobotParameters:
                 s, c = math.sin(link_angle), math.cos(link_angle)
                 for p in parts:  # part at -z along the link: rotate (p.x, p.z) by the link angle
                     add(p.mass, origin[0] + p.x * c - p.z * s, origin[1] + p.x * s + p.z * c, p.iyy)
-        if payload:  # both hands in one call (elementwise: the same values as one by one)
-            hx, hz = self.hand_position(np.array([left[0], right[0]], dtype=float),
-                                        np.array([left[1], right[1]], dtype=float), 0.0)
-            add(payload, 0.5 * (float(hx[0]) + float(hx[1])), 0.5 * (float(hz[0]) + float(hz[1])), 0.0)
+        if payload:  # hand_position of both hands, body upright: numpy's sines and cosines in one call each
+            (sl, el), (sr, er) = left, right
+            angles = np.array([0.0, sl - 0.0, sl + el - 0.0, sr - 0.0, sr + er - 0.0], dtype=float)
+            sin, cos = np.sin(angles).tolist(), np.cos(angles).tolist()
+            hxl, hzl = self._hand(sin[0], cos[0], sin[1], cos[1], sin[2], cos[2])
+            hxr, hzr = self._hand(sin[0], cos[0], sin[3], cos[3], sin[4], cos[4])
+            add(payload, 0.5 * (hxl + hxr), 0.5 * (hzl + hzr), 0.0)
         return np.array(m), np.array(xs), np.array(zs), iyy
 
     @staticmethod
