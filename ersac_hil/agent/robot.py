@@ -20,10 +20,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
 from protocol.can.objects import OBJECTS, Index
+
+Trig = TypeVar("Trig", float, np.ndarray)
+"""Sines and cosines as floats or as numpy arrays (``RobotParameters._hand``)."""
 
 
 @dataclass(frozen=True)
@@ -117,10 +121,11 @@ class RobotParameters:
         a1, a2 = shoulder - pitch, shoulder + elbow - pitch
         return self._hand(np.sin(pitch), np.cos(pitch), np.sin(a1), np.cos(a1), np.sin(a2), np.cos(a2))
 
-    def _hand(self, sin_p, cos_p, sin_1, cos_1, sin_2, cos_2):  # noqa: ANN001, ANN202 - arrays or floats
+    def _hand(self, sin_p: Trig, cos_p: Trig, sin_1: Trig, cos_1: Trig, sin_2: Trig, cos_2: Trig
+              ) -> tuple[Trig, Trig]:
         """``hand_position`` from the sines and cosines of the pitch, the upper arm's angle
         ``q_s - alpha`` and the forearm's ``q_s + q_e - alpha`` (the same operations whether
-        arrays or floats)."""
+        arrays that broadcast or floats)."""
         x = self.shoulder_z * sin_p + self.upper_arm_length * sin_1 + self.hand_offset * sin_2
         z = self.shoulder_z * cos_p - self.upper_arm_length * cos_1 - self.hand_offset * cos_2
         return x, z
@@ -193,6 +198,7 @@ class RobotParameters:
 
     @staticmethod
     def _centre(m: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[float, float]:
+        """Centre ``(x, z)`` of point masses ``m`` at ``x``, ``z`` (shape ``(k,)`` each)."""
         mass = m.sum()
         return float((m * x).sum() / mass), float((m * z).sum() / mass)
 
