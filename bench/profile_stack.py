@@ -117,6 +117,7 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     cli = [sys.executable, "-m", "ersac_hil.cli"]
     procs: dict[str, subprocess.Popen] = {}
+    sampled = 0
     try:
         with EmbeddedRouter() as router:
             sim_bus = None
@@ -152,12 +153,14 @@ def main() -> int:
                 worker = threading.Thread(target=load, daemon=True)
                 worker.start()
                 time.sleep(1.0)  # past the first episode's set-up
+                first = episodes[0]
                 spies = {name: subprocess.Popen(
                     [spy, "record", "--nonblocking", "--gil", "-r", str(args.rate), "-f", "raw",
                      "-d", str(int(args.seconds)), "-p", str(p.pid), "-o", str(out / f"{name}.txt")],
                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for name, p in procs.items()}
                 for s in spies.values():
                     s.wait()
+                sampled = episodes[0] - first  # finished while the processes were sampled
                 stop.set()
                 worker.join(timeout=60)
     finally:
@@ -165,8 +168,9 @@ def main() -> int:
             p.terminate()
             p.communicate(timeout=10)
     print(f"profile of lock-step bracing episodes over '{args.bus}', {args.seconds:g} s at {args.rate} Hz, "
-          f"{episodes[0]} episodes; load average {os.getloadavg()[0]:.2f}; raw stacks in {out}")
-    cycles = episodes[0] * 400  # 2 s bracing episodes at 200 Hz (set-up included in the wall time)
+          f"{sampled} episodes while sampled ({episodes[0]} in all); load average {os.getloadavg()[0]:.2f}; "
+          f"raw stacks in {out}")
+    cycles = sampled * 400  # 2 s bracing episodes at 200 Hz (set-up included in the wall time)
     for name in procs:
         raw = out / f"{name}.txt"
         if raw.exists():
