@@ -15,7 +15,11 @@ looked up by the request's task name among ``EpisodeConfig.tasks`` (``UnknownTas
 3. ``task.configure`` by SDO in PRE-OPERATIONAL, NMT start;
 4. the SYNC loop (lock-step unless the bus is real-time): RPDOs with the LQR wheel torques
    and the task's arm commands (``task.begin`` after the first cycle), SYNC, TPDOs; ends after
-   T = ``TASKS[task].horizon_s`` or when the task's end condition says so;
+   T = ``TASKS[task].horizon_s`` or when the task's end condition says so. ``task.begin`` may
+   download by SDO (lifting: a spline of several kB, 5-10 ms): in lock-step the second SYNC
+   waits for it, so an episode is the same whatever the machine; in real time it runs on a
+   thread of its own while the SYNC loop keeps its period (the robot keeps balancing on the
+   first commands) and its commands apply from the first cycle after it returned;
 5. NMT pre-operational (the boards drop their torque), cost terms from the trace.
 
 A fault (PDO timeout, heartbeat lost, EMCY that is not a task outcome, bus down) ends the loop
@@ -209,15 +213,22 @@ class EpisodeRunner:
         end = task.end_condition(plan.setup, bus.timing.period_s)
         bus.reset_pacing()
         overruns0 = bus.overruns
+        beginning: _BesideTheLoop | None = None
         try:
             tel = bus.cycle(commands)
             ctl.start(tel)
             episode.samples.append(tel)
-            commands = task.begin(bus, plan.setup, tel, commands)
+            if bus.timing.realtime:
+                first, held = tel, commands
+                beginning = _BesideTheLoop(lambda: task.begin(bus, plan.setup, first, held))
+            else:
+                commands = task.begin(bus, plan.setup, tel, commands)
             while len(episode.samples) < plan.n_cycles:
                 if self.stop_requested.is_set():
                     episode.status, episode.detail = "aborted", "stopped on request"
                     return
+                if beginning is not None and beginning.done():
+                    commands, beginning = beginning.result(), None  # re-raises the task's error
                 self._check_emcy(episode, emcy_mark)
                 self._flags(episode, tel)
                 ctl.payload = task.payload_kg(episode.failures)
@@ -234,6 +245,8 @@ class EpisodeRunner:
             self._check_emcy(episode, emcy_mark)
             self._flags(episode, tel)
         finally:
+            if beginning is not None:  # never leave an SDO transfer running into the next episode
+                beginning.settle()
             episode.count("late_cycles", bus.overruns - overruns0)
             episode.count("saturated_cycles", ctl.saturated_cycles)
             if ctl.fallen:
@@ -298,3 +311,35 @@ class EpisodeRunner:
 def _fault_counter(exc: AgentFault) -> str:
     return {"fault_pdo_timeout": "pdo_timeouts", "fault_heartbeat": "heartbeat_lost",
             "fault_emcy": "emcy_faults"}.get(exc.status, "bus_faults")
+
+
+class _BesideTheLoop:
+    """``begin()`` on a thread of its own while the SYNC loop goes on (the thread inherits the
+    loop's scheduling, SCHED_FIFO in real time)."""
+
+    def __init__(self, begin: Callable[[], Commands]) -> None:
+        self._commands: Commands | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(begin,), name="task-begin", daemon=True)
+        self._thread.start()
+
+    def _run(self, begin: Callable[[], Commands]) -> None:
+        try:
+            self._commands = begin()
+        except BaseException as exc:  # noqa: BLE001 - handed to the SYNC loop's thread
+            self._error = exc
+
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def result(self) -> Commands:
+        """The commands ``begin`` returned (waits for it); raises what it raised."""
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._commands  # type: ignore[return-value]
+
+    def settle(self) -> None:
+        """Wait for a ``begin`` the loop left behind (a fault ended the loop first); its outcome
+        no longer matters (its SDO transfers end within their timeout)."""
+        self._thread.join()

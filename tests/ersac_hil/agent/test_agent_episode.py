@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import uuid
-from dataclasses import replace
+import threading
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
@@ -11,11 +12,13 @@ from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.configure import reset_scenario
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.lqr import BalanceController
-from ersac_hil.agent.tasks import BracingTask, UnknownTask
+from ersac_hil.agent.errors import LimitViolation
+from ersac_hil.agent.tasks import BracingTask, LiftingTask, UnknownTask
 from ersac_hil.agent.telemetry import Commands
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.can_nodes import at_sync
 from helpers.timing import PATIENCE_S, PATIENT, patient_controllers, patient_sdo
+from helpers.waiting import wait_until
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Scenario
 from protocol.zenoh import EpisodeRequest
@@ -178,3 +181,69 @@ def test_realtime_episode_paces_sync_by_the_wall_clock():
     assert r.wall_s >= 2.0  # 400 SYNCs at 5 ms cannot finish sooner
     assert "late_cycles" in r.fault_counts
     assert robot.stats.cycles > 0
+
+
+@dataclass(frozen=True)
+class _WatchedLifting(LiftingTask):
+    """Lifting whose ``begin`` notes the SYNC count it starts at and, with ``cycles_first``,
+    waits for that many more SYNC cycles before downloading its spline (a slow download)."""
+    cycles_first: int = 0
+    refuse: bool = False
+    began_at: list = field(default_factory=list)
+
+    def begin(self, bus, setup, first, commands):  # noqa: ANN001, ANN201
+        seen = bus.cycles
+        self.began_at.append((first.cycle, seen))
+        if self.cycles_first:
+            wait_until(lambda: bus.cycles >= seen + self.cycles_first, timeout_s=PATIENCE_S,
+                       what=f"{self.cycles_first} SYNC cycles while the task begins")
+        if self.refuse:
+            raise LimitViolation("spline out of limits (test)")
+        return super().begin(bus, setup, first, commands)
+
+
+def _realtime_rig():
+    config = new_config()
+    robot = SimulatedRobot(config, realtime=True)
+    bus = AgentBus(config, timing=replace(PATIENT, realtime=True)).open()
+    bus.wait_for_nodes(timeout_s=PATIENCE_S)
+    patient_sdo(bus.nodes.values())
+    patient_controllers(bus.nodes.values())
+    return robot, bus
+
+
+def test_lock_step_begins_the_task_between_the_first_and_second_sync(rig):
+    _, bus, _ = rig
+    task = _WatchedLifting()
+    r = run(EpisodeRunner(bus, EpisodeConfig(tasks={"lifting": task})), "lifting", SENSIBLE_LIFT)
+    assert r.status == "ok" and "goal reached" in r.detail
+    [(first_cycle, cycles_at_begin)] = task.began_at
+    assert cycles_at_begin == first_cycle  # no SYNC while the spline downloads: the same episode anywhere
+
+
+def test_realtime_keeps_the_sync_period_while_the_task_downloads_its_spline():
+    robot, bus = _realtime_rig()
+    try:
+        task = _WatchedLifting(cycles_first=3)  # inline, these cycles would never come
+        r = run(EpisodeRunner(bus, EpisodeConfig(tasks={"lifting": task})), "lifting", SENSIBLE_LIFT)
+    finally:
+        bus.close()
+        robot.close()
+    assert r.status == "ok" and "goal reached" in r.detail and not r.failed("bottle_dropped")
+    assert r.telemetry["final_bottle_height_m"] == pytest.approx(1.2, abs=0.05)
+    assert len(task.began_at) == 1
+
+
+def test_realtime_task_refusal_still_propagates_and_leaves_no_thread():
+    robot, bus = _realtime_rig()
+    try:
+        task = _WatchedLifting(cycles_first=1, refuse=True)
+        with pytest.raises(LimitViolation, match="out of limits"):
+            run(EpisodeRunner(bus, EpisodeConfig(tasks={"lifting": task})), "lifting", SENSIBLE_LIFT)
+        assert not [t for t in threading.enumerate() if t.name == "task-begin"]
+        # the bus is usable afterwards: the next episode runs
+        r = run(EpisodeRunner(bus), "bracing", (0.5,), seed=1)
+    finally:
+        bus.close()
+        robot.close()
+    assert r.status == "ok" and r.telemetry["n_cycles"] == 400
