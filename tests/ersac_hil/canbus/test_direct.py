@@ -124,3 +124,23 @@ def test_refused_listeners(secure_can_router, listen, role, match):
 def test_a_bad_listen_endpoint_is_a_python_can_init_error():
     with pytest.raises(can.CanInitializationError, match="PROTOCOL/HOST:PORT"):
         can.Bus(interface="zenoh", channel="c", listen="tcp/127.0.0.1")
+
+
+@pytest.mark.parametrize("listener_low, client_low", [(True, "false"), ("0", True)])
+def test_a_low_latency_end_and_a_default_end_still_link(listener_low, client_low):
+    """Zenoh negotiates the transport per link: one end without the low-latency transport (a
+    router's default session, a third-party bus) gets the universal one, frames as before."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    name = f"d-{uuid.uuid4().hex[:8]}"
+    listener, client = _buses({"channel": name, "listen": endpoint, "lowlatency": listener_low},
+                              {"channel": f"{name}@{endpoint}", "lowlatency": client_low})
+    try:
+        assert _link(client, listener, 0x201) is not None
+        assert _link(listener, client, 0x181) is not None
+        burst = [(0x181 + i, bytes([i])) for i in range(13)]
+        listener.send_data_frames(burst)
+        got = [client.recv(TIMEOUT) for _ in burst]
+        assert [(m.arbitration_id, bytes(m.data)) for m in got] == burst
+    finally:
+        for bus in (client, listener):
+            bus.shutdown()

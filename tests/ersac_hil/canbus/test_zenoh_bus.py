@@ -342,6 +342,7 @@ def test_a_plain_channel_cannot_reach_the_secured_router(secure_can_router):
     ({"zenoh_config": "/nonexistent/agent.json5"}, "no such file"),
     ({"insecure": "maybe"}, "insecure must be true or false"),
     ({"mode": "router"}, "client or peer"),
+    ({"lowlatency": "maybe"}, "lowlatency must be true or false"),
 ])
 def test_bad_session_arguments_are_refused(kwargs, match):
     with pytest.raises(can.CanInitializationError, match=match):
