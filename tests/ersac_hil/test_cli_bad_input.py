@@ -102,8 +102,15 @@ COMMANDS = _commands(build_parser())
 
 
 def _children() -> set[int]:
-    return {int(pid) for task in Path("/proc/self/task").iterdir()
-            for pid in (task / "children").read_text().split()}
+    """Child processes of every thread of this process (a thread that ends while it is listed
+    has none left to count)."""
+    pids: set[int] = set()
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            pids.update(int(pid) for pid in (task / "children").read_text().split())
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+    return pids
 
 
 def _check(code: int | None, err: str, needle: str) -> str | None:
