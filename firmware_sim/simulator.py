@@ -274,7 +274,7 @@ class Simulator:
         """Motor currents/voltages of the substep just integrated (forces and speeds at the
         same state)."""
         rig = self._require()
-        d, act = rig.physics.data, rig.firmware.actuators
+        d, act = rig.physics.data, rig.physics.axes.actuator_view
         self._current = rig.motors.current(d.actuator_force[act].tolist())
         self._voltage = rig.motors.voltage(self._current, d.actuator_velocity[act].tolist())
 

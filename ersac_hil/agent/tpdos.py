@@ -70,12 +70,13 @@ class TpdoCollector:
             waiting = bool(pending)
             for frame in frames:
                 cob_id, flags, _, data = frame
-                if cob_id in pending and not flags & NOT_DATA and len(data) >= sizes[cob_id]:
+                if cob_id in pending and not flags & NOT_DATA:
                     size = sizes[cob_id]
-                    kept[cob_id] = data if len(data) == size else data[:size]
-                    pending.discard(cob_id)
-                else:
-                    rest.append(frame)
+                    if len(data) >= size:
+                        kept[cob_id] = data if len(data) == size else data[:size]
+                        pending.discard(cob_id)
+                        continue
+                rest.append(frame)
             if waiting and not pending:
                 self._arrived.release()
         return rest

@@ -31,6 +31,7 @@ python-can's own configuration (``~/.canrc``, ``CAN_CONFIG``) and ``--bus-kwargs
 as strings; they are read like the keyword arguments. A bus does not hear its own frames
 unless ``receive_own_messages=True``. Delivery is reliable and blocking
 (congestion control ``BLOCK``, one priority, so frames are never dropped or reordered).
+Periodic sends use python-can's thread-based tasks (``modify_data`` works).
 
 Each bus's session asks for Zenoh's low-latency transport (``lowlatency=True``, the default:
 ``transport/unicast/lowlatency`` on, QoS off, which it excludes): a frame is written to the link
@@ -39,7 +40,6 @@ cycle runs 3-24 % more cycles a second with it on this machine (docs/performance
 negotiated per link: where the other end does not ask for it (a router's default session),
 the link is Zenoh's universal transport as before. ``lowlatency=False`` leaves the transport
 to the defaults or the ``zenoh_config`` file.
-Periodic sends use python-can's thread-based tasks (``modify_data`` works).
 
 Push delivery (optional, :meth:`ZenohBus.push_notifier`): instead of a ``can.Notifier`` thread
 polling ``recv()``, the listeners run on Zenoh's receive thread as each frame arrives - one
@@ -90,8 +90,8 @@ from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "Frame", "NOT_DATA", "encode_frame", "encode_data_frames",
-           "decode_frame", "decode_frames", "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "Frame", "NOT_DATA", "encode_frame",
+           "encode_data_frames", "decode_frame", "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
 #: How long ``shutdown`` waits for a put in progress on another thread (seconds).

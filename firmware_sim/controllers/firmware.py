@@ -91,11 +91,9 @@ class Firmware:
         self.dt = physics.timestep
         idx = physics.axes
         self._act = idx.actuator
-        self.actuators = as_slice(idx.actuator)
-        """The seven axes' actuators: a slice where their ids are contiguous (a view of MuJoCo's
-        actuator arrays, no copy), else the id array (shape (7,), ``AXES`` order)."""
+        self._act_view = idx.actuator_view
         # the seven actuator forces as a view into MuJoCo's data (read every substep)
-        self._force = physics.data.actuator_force[self.actuators] if isinstance(self.actuators, slice) else None
+        self._force = physics.data.actuator_force[self._act_view] if isinstance(self._act_view, slice) else None
         self._abs_force = np.zeros(7)
         self._dof = idx.dof
         self._qpos = idx.qpos
@@ -292,7 +290,7 @@ class Firmware:
         """After a substep: current limiting and over-current timing. Returns the axes whose
         over-current fault latched in this substep."""
         self.tick += 1
-        force = self._force if self._force is not None else self.physics.data.actuator_force[self.actuators]
+        force = self._force if self._force is not None else self.physics.data.actuator_force[self._act_view]
         if not self._counting:  # no axis was limiting (the flags are all clear): scalar check first
             for f, threshold in zip(force.tolist(), self._sat_threshold_list):
                 if abs(f) >= threshold:

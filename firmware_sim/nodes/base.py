@@ -352,7 +352,7 @@ class SlaveNode(canopen.LocalNode):
         size, store, lock = self._inbox.sizes[slot], self._inbox.store, self._lock
 
         def on_frame(can_id, data, timestamp) -> None:
-            if self.nmt._state != OPERATIONAL or len(data) < size:
+            if not self.operational or len(data) < size:
                 return
             frame = bytes(data)
             with lock:

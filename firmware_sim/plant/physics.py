@@ -69,6 +69,11 @@ class AxisIndex:
         """``dof`` as a slice where the addresses are contiguous (indexing gives a view)."""
         return as_slice(self.dof)
 
+    @functools.cached_property
+    def actuator_view(self) -> slice | np.ndarray:
+        """``actuator`` as a slice where the ids are contiguous (indexing gives a view)."""
+        return as_slice(self.actuator)
+
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> "AxisIndex":
         qpos, dof, act, ctrl = [], [], [], []
