@@ -109,22 +109,27 @@ DIRECT = "direct"
 
 
 def processes(config: BusConfig | str | None, n: int, realtime: bool,
-              checkout: Path | None = None, python: str = sys.executable) -> dict[str, list[EpisodeResult]]:
+              checkout: Path | None = None, python: str = sys.executable,
+              busy_poll: float = 0.0) -> dict[str, list[EpisodeResult]]:
     """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router;
     ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's), run by ``python``
-    from ``checkout`` (default: this one)."""
+    from ``checkout`` (default: this one); ``busy_poll``: both CAN-over-Zenoh buses' (s, 0: off)."""
     extra = ["--realtime"] if realtime else []
+    polling = [f"busy_poll={busy_poll}"] if busy_poll else []
     procs = []
     try:
         with EmbeddedRouter() as router:
             sim_bus = None
             if config == DIRECT:
                 name, listen = f"bench-{uuid.uuid4().hex[:6]}", f"tcp/127.0.0.1:{free_tcp_port()}"
-                sim_bus = ["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}"]
+                sim_bus = ["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}",
+                           *polling]
                 config = BusConfig("zenoh", f"{name}@{listen}")
             elif config is None:
                 config = BusConfig("zenoh", f"bench-{uuid.uuid4().hex[:6]}@{router.endpoint}")
             bus_args = ["--bus-interface", config.interface, "--bus-channel", config.channel]
+            if config.interface == "zenoh" and polling:
+                bus_args += ["--bus-kwargs", *polling]
             sim = subprocess.Popen([python, "-m", "firmware_sim", *(sim_bus or bus_args), *extra],
                                    stdout=subprocess.PIPE, text=True, cwd=checkout)
             procs.append(sim)
@@ -192,7 +197,8 @@ def compare(args: argparse.Namespace) -> int:
         for backend in args.only or ("zenoh",):
             if backend == "virtual":
                 continue
-            new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here))
+            new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here,
+                                                   busy_poll=args.busy_poll))
             report(backend, new)
             if args.realtime:  # the physics follows the wall clock: episodes differ by design
                 continue
@@ -218,6 +224,8 @@ def main() -> int:
     parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
     parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT), default="zenoh")
     parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
+    parser.add_argument("--busy-poll", dest="busy_poll", type=float, default=0.0, metavar="S",
+                        help="CAN over Zenoh: this checkout's buses poll S seconds after each sample")
     args = parser.parse_args()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")

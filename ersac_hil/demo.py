@@ -30,6 +30,9 @@ connects with its role's config (``--zenoh-config OUT/certs/<role>.json5``).
 ``OUT/stack.json`` says where the router is and which config each role uses, so a person or a
 program can attach (e.g. ``ersac-hil state --zenoh-config OUT/certs/observer.json5``).
 ``--linger`` keeps the whole stack up after the report until Ctrl-C.
+``--busy-poll S`` (default 0.002): the simulators' and agents' CAN-over-Zenoh buses keep
+polling for the next frame S seconds after each one instead of sleeping (a processor's time
+while episodes run, for about twice the cycles a second; 0 turns it off).
 ``--dashboard``: ``ersac-hil dashboard`` starts after the agent, before the daemon (so its page
 sees every episode), with the operator's identity under ``--secure``; its URL is printed.
 ``--fleet N``: N simulator/agent pairs (robots R, R-2, ..., R-N, each pair on its own CAN
@@ -53,12 +56,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ersac_hil.cli_args import (UsageError, finite_float, non_negative_int, output_dir, positive_int,
-                                tcp_port)
+from ersac_hil.cli_args import (UsageError, finite_float, non_negative_float, non_negative_int, output_dir,
+                                positive_int, tcp_port)
 
 __all__ = ["register", "Child", "ChildFailed", "DemoConfig", "Pair", "Stack", "cli_argv", "run_demo"]
 
 GRACE_S = 5.0
+BUSY_POLL_S = 0.002
+"""How long the simulators' and agents' CAN-over-Zenoh buses keep polling after each sample
+(``--busy-poll``; ``ZenohBus(busy_poll=...)``): longer than a lock-step cycle's answer takes,
+so a polling thread is never woken during an episode (docs/performance.md)."""
 _PR_SET_PDEATHSIG = 1
 
 
@@ -215,6 +222,7 @@ class DemoConfig:
     can: str = "direct"
     fleet: int = 1
     batch: int | None = None
+    busy_poll: float = BUSY_POLL_S
 
 
 def cli_argv(*args: str) -> list[str]:
@@ -265,12 +273,14 @@ class Stack:
         can: ``direct`` (CAN over Zenoh, the agent's bus connected to the simulator's listener;
             the agent starts once its simulator is up), ``zenoh`` (through the router; with
             ``secure``, the simulator and the agent on it with their roles' certificates) or ``hub``.
+        busy_poll: seconds the simulators' and agents' CAN-over-Zenoh buses keep polling after
+            each sample (``ZenohBus(busy_poll=...)``; 0: off).
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
                  router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "direct",
-                 fleet: bool = False) -> None:
+                 fleet: bool = False, busy_poll: float = BUSY_POLL_S) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -282,6 +292,7 @@ class Stack:
         self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
         self._fleet = fleet
         self._can = can
+        self._busy_poll = busy_poll
         logs.mkdir(parents=True, exist_ok=True)
 
     def zenoh_args(self, role: str, bind: str | None = None) -> list[str]:
@@ -295,8 +306,14 @@ class Stack:
         ``secure``."""
         if bind is not None:
             channel = f"{channel}#bind={bind}:0"
-        identity = ["--bus-kwargs", f"zenoh_config={self.roles[role]}"] if self.roles else []
-        return ["--bus-interface", "zenoh", "--bus-channel", channel, *identity]
+        return ["--bus-interface", "zenoh", "--bus-channel", channel, *self._bus_kwargs(role)]
+
+    def _bus_kwargs(self, role: str, *first: str) -> list[str]:
+        """``--bus-kwargs`` of a CAN-over-Zenoh bus in ``role``: ``first``, the role's identity
+        (``secure``) and the busy polling (none if empty)."""
+        kwargs = [*first, *([f"zenoh_config={self.roles[role]}"] if self.roles else []),
+                  *([f"busy_poll={self._busy_poll}"] if self._busy_poll else [])]
+        return ["--bus-kwargs", *kwargs] if kwargs else []
 
     def launch(self, name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
         child = Child(name, argv, self.logs, self.env, echo)
@@ -351,8 +368,7 @@ class Stack:
 
         protocol, host, _ = split_endpoint(self.endpoint)
         listen = f"{protocol}/{host}:{free_tcp_port(host)}"
-        identity = [f"zenoh_config={self.roles['simulator']}"] if self.roles else []
-        return (["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}", *identity],
+        return (["--bus-interface", "zenoh", "--bus-channel", name, *self._bus_kwargs("simulator", f"listen={listen}")],
                 f"{name}@{listen}")
 
     def check(self, children: Sequence[Child] | None = None) -> None:
@@ -386,7 +402,7 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
     started = time.monotonic()
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
                   pairs=config.fleet, secure=config.secure, router_host=config.router_host,
-                  agent_host=config.agent_host, can=config.can, fleet=True)
+                  agent_host=config.agent_host, can=config.can, fleet=True, busy_poll=config.busy_poll)
     batch = config.fleet if config.batch is None else config.batch
     code = 1
     try:
@@ -464,7 +480,8 @@ def _demo(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import until_signal
     config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
                         secure=args.secure, linger=args.linger, dashboard=args.dashboard,
-                        dashboard_port=args.dashboard_port, can=args.can, fleet=args.fleet, batch=args.batch)
+                        dashboard_port=args.dashboard_port, can=args.can, fleet=args.fleet, batch=args.batch,
+                        busy_poll=args.busy_poll)
     return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
@@ -492,6 +509,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulator/agent pairs behind the one daemon (default 1)")
     p.add_argument("--batch", type=positive_int, metavar="K",
                    help="perturbations per update, run in parallel on the fleet (default: N; 1 = the paper's)")
+    p.add_argument("--busy-poll", dest="busy_poll", type=non_negative_float, default=BUSY_POLL_S, metavar="S",
+                   help=f"CAN over Zenoh: the simulators' and agents' buses poll S seconds after each frame "
+                        f"instead of sleeping (default {BUSY_POLL_S}; 0 = off)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo, validate=_validate)

@@ -8,7 +8,7 @@ role), every participant with the ``agent`` role's config (the ``simulator`` rol
 same CAN rule). ``zenoh-direct`` is a direct link (``ersac_hil.canbus.direct``): every
 participant, with the ``agent`` role's config, connects to a bus listening with the
 ``simulator`` role's config (TLS, client certificates, the router's access control) instead
-of a router.
+of a router, and busy-polls (``busy_poll``) as ``ersac-hil demo``'s buses do.
 """
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ def can_backend(request):
         endpoint = request.getfixturevalue("can_listener")
         certs = request.getfixturevalue("secure_can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{endpoint}",
-                        options=(("zenoh_config", str(certs.configs["agent"])),))
+                        options=(("zenoh_config", str(certs.configs["agent"])), ("busy_poll", "0.002")))
     elif kind == "zenoh-tls":
         certs = request.getfixturevalue("secure_can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}",

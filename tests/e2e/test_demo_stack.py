@@ -128,3 +128,24 @@ def test_a_fleet_of_two_pairs_learns_exactly_what_one_pair_learns(tmp_path):
     assert re.search(r"on ubot1\b(?!-)", output) and "on ubot1-2" in output  # both pairs served
     assert len(episodes) == 4 and [u[0] for u in updates] == [0, 1] and [u[-1] for u in updates] == [[0, 1], [2, 3]]
     assert runs["single"][2] == (episodes, updates)
+
+
+@pytest.mark.parametrize("busy_poll", [0.0, 0.002])
+def test_each_can_bus_gets_one_bus_kwargs_flag_with_its_identity_and_polling(tmp_path, busy_poll):
+    """The children's CAN flags: the role's identity and the busy polling in one
+    ``--bus-kwargs`` (a second flag would replace the first), parsed as keyword arguments."""
+    import threading
+
+    from ersac_hil.demo import Stack
+    from protocol.can.busconfig import parse_bus_kwargs
+    stack = Stack(tmp_path / "logs", threading.Event(), busy_poll=busy_poll)
+    stack.roles = {"agent": "agent.json5", "simulator": "simulator.json5"}
+    sim, channel = stack._direct_listener("ersac-ubot1")
+    for argv, role, first in ((sim, "simulator", (("listen", channel.split("@")[1]),)),
+                              (stack.can_args("agent", channel), "agent", ())):
+        assert argv.count("--bus-kwargs") == 1
+        expected = (*first, ("zenoh_config", f"{role}.json5"),
+                    *((("busy_poll", str(busy_poll)),) if busy_poll else ()))
+        assert parse_bus_kwargs(argv[argv.index("--bus-kwargs") + 1:]) == expected
+    stack.roles = {}
+    assert ("--bus-kwargs" in stack.can_args("agent", channel)) == bool(busy_poll)

@@ -343,6 +343,10 @@ def test_a_plain_channel_cannot_reach_the_secured_router(secure_can_router):
     ({"insecure": "maybe"}, "insecure must be true or false"),
     ({"mode": "router"}, "client or peer"),
     ({"lowlatency": "maybe"}, "lowlatency must be true or false"),
+    ({"busy_poll": "soon"}, "busy_poll must be a number of seconds"),
+    ({"busy_poll": -0.001}, "busy_poll must be finite and >= 0"),
+    ({"busy_poll": "nan"}, "busy_poll must be finite and >= 0"),
+    ({"busy_poll": "inf"}, "busy_poll must be finite and >= 0"),
 ])
 def test_bad_session_arguments_are_refused(kwargs, match):
     with pytest.raises(can.CanInitializationError, match=match):
@@ -374,3 +378,100 @@ def test_shutdown_while_another_thread_sends_is_clean(can_router):
         bus.shutdown()
         sender.join(5)
         assert not sender.is_alive() and errors == []
+
+
+# -- busy polling ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def polling_pair(can_router):
+    """A plain bus and a busy-polling bus (1 ms) on one channel."""
+    channel = _channel(can_router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel, busy_poll="0.001")
+    _wait_linked(a, b)
+    yield a, b
+    a.shutdown()
+    b.shutdown()
+
+
+def _wire(msgs: list[can.Message]) -> list[bytes]:
+    return [encode_frame(m) for m in msgs]
+
+
+@given(bursts=st.lists(st.lists(frames, min_size=1, max_size=13), min_size=1, max_size=6),
+       pauses=st.lists(st.sampled_from([0.0, 0.0, 0.003]), min_size=6, max_size=6))
+def test_a_busy_polling_bus_gets_every_frame_in_order(polling_pair, bursts, pauses):
+    """Bursts and single frames, some after the polling window has run out (the thread then
+    blocks in Zenoh's channel): every frame arrives once, in order, as sent."""
+    a, b = polling_pair
+    sent: list[can.Message] = []
+    for burst, pause in zip(bursts, pauses):
+        if pause:
+            time.sleep(pause)  # not a synchronisation: lets the receive thread go back to blocking
+        if len(burst) == 1:
+            a.send(burst[0])
+        else:
+            a.send_many(burst)
+        sent += burst
+    got = [b.recv(TIMEOUT) for _ in sent]
+    assert None not in got
+    assert _wire(got) == _wire(sent)
+    assert b.recv(0.02) is None
+
+
+def _rx_threads() -> list:
+    import threading
+    return [t for t in threading.enumerate() if t.name.startswith("zenoh-can-rx")]
+
+
+def test_a_busy_polling_bus_pushes_on_its_receive_thread_which_ends_at_shutdown(can_router):
+    import threading
+    channel = _channel(can_router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel, busy_poll=0.002)
+    try:
+        _wait_linked(a, b)
+        got: list[tuple[int, str]] = []
+        done = threading.Event()
+
+        def listener(msg: can.Message) -> None:
+            got.append((msg.arbitration_id, threading.current_thread().name))
+            if len(got) == 20:
+                done.set()
+        b.push_notifier([listener])
+        for k in range(10):
+            a.send_many([can.Message(arbitration_id=0x180 + k, data=b"x"),
+                         can.Message(arbitration_id=0x280 + k, data=b"y")])
+        assert done.wait(TIMEOUT)
+        assert [i for i, _ in got] == [i for k in range(10) for i in (0x180 + k, 0x280 + k)]
+        assert {name for _, name in got} == {f"zenoh-can-rx {b.key}"}
+    finally:
+        a.shutdown()
+        b.shutdown()
+    assert not any(t.name == f"zenoh-can-rx {b.key}" for t in _rx_threads())
+
+
+def _cpu_ticks(thread) -> int:  # noqa: ANN001
+    """User plus system clock ticks the kernel has charged ``thread`` (Linux)."""
+    fields = open(f"/proc/self/task/{thread.native_id}/stat").read().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])
+
+
+def test_a_busy_polling_bus_blocks_once_frames_stop(can_router):
+    """It polls only within ``busy_poll`` of the last frame: idle, its thread uses no processor."""
+    channel = _channel(can_router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel, busy_poll=0.05)
+    try:
+        _wait_linked(a, b)
+        thread = next(t for t in _rx_threads() if t.name.endswith(b.key))
+        time.sleep(0.2)  # past the window: blocked
+        before = _cpu_ticks(thread)
+        time.sleep(1.0)
+        idle = _cpu_ticks(thread) - before
+        a.send(can.Message(arbitration_id=0x123, data=b"go"))
+        assert b.recv(TIMEOUT) is not None
+        assert idle <= 2, f"an idle busy-polling bus used {idle} ticks in 1 s"
+    finally:
+        a.shutdown()
+        b.shutdown()
