@@ -1,6 +1,6 @@
 """Throughput of independent episodes on a fleet of N simulator/agent pairs behind one client.
 
-    python bench/fleet.py [--fleet 1,2] [--episodes 16] [--rounds 2] [--task bracing] [--out DIR]
+    python bench/fleet.py [--fleet 1,2] [--busy-poll 0.002,0] [--episodes 16] [--rounds 2] [--task bracing] [--out DIR]
 
 For each N the stack of ``ersac-hil demo --fleet N`` is started (embedded router, N simulator
 and N agent processes, each pair on its own CAN-over-Zenoh channel); the same M independent
@@ -8,8 +8,9 @@ episodes (fixed theta, scenario seeds 0..M-1) go through ``ersac_hil.daemon.flee
 daemon's dispatcher: each request to whichever agent is free). After one warm-up episode per
 agent, the wall time from the first request to the last result gives episodes per second,
 the aggregate real-time factor (simulated seconds per wall second) and the speed-up over N = 1.
-The sizes are interleaved round by round (1, 2, 1, 2, ...) so every comparison is from the
-same run; the load average is printed beside every figure (a shared 2-core machine).
+``--busy-poll`` gives the CAN buses' polling window(s) in seconds (``Stack(busy_poll=...)``,
+default the demo's; several, comma-separated, are compared). The sizes (and windows) are
+interleaved round by round (1, 2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside every figure (a shared 2-core machine).
 
 It also checks that the results do not depend on the fleet: every episode's cost terms must be
 bit-identical for every N and round (the scenario seed travels in the request).
@@ -32,7 +33,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
-from ersac_hil.demo import Stack  # noqa: E402
+from ersac_hil.demo import BUSY_POLL_S, Stack  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
 from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
 
@@ -43,10 +44,12 @@ def load() -> str:
     return " ".join(f"{v:.1f}" for v in os.getloadavg())
 
 
-def run_fleet(n: int, task: str, m: int, logs: Path, tag: str) -> tuple[float, dict[int, dict]]:
+def run_fleet(n: int, task: str, m: int, logs: Path, tag: str,
+              busy_poll: float = BUSY_POLL_S) -> tuple[float, dict[int, dict]]:
     """Start the stack with ``n`` pairs, run ``m`` episodes; (wall seconds, seed -> cost terms)."""
     stop = threading.Event()
-    with Stack(logs / f"{tag}-n{n}", stop, lambda _line: None, pairs=n, fleet=True) as stack:
+    with Stack(logs / f"{tag}-n{n}-p{busy_poll}", stop, lambda _line: None, pairs=n, fleet=True,
+               busy_poll=busy_poll) as stack:
         stack.start()
         session = open_session(make_config("client", connect=(stack.endpoint,)))
         fleet = Fleet(session, "ersac", [p.robot for p in stack.pairs], 300.0, stop)
@@ -89,46 +92,52 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default 2)")
     ap.add_argument("--task", choices=sorted(THETA), default="bracing")
     ap.add_argument("--out", type=Path, help="write fleet.png here")
+    ap.add_argument("--busy-poll", dest="busy_poll", default=str(BUSY_POLL_S),
+                    help=f"CAN buses' polling window(s) in s, comma-separated (default {BUSY_POLL_S}; 0 = off)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.fleet.split(",")]
+    polls = [float(x) for x in args.busy_poll.split(",")]
+    variants = [(n, p) for n in sizes for p in polls]
     horizon = get_task(args.task).horizon_s
-    print(f"{args.task}: {args.episodes} independent episodes per fleet size, sizes {sizes}, "
-          f"{args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}", flush=True)
-    walls: dict[int, list[float]] = {n: [] for n in sizes}
+    print(f"{args.task}: {args.episodes} independent episodes per fleet size, sizes {sizes}, busy polling "
+          f"{polls} s, {args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}", flush=True)
+    walls: dict[tuple[int, float], list[float]] = {v: [] for v in variants}
     reference: dict[int, dict] | None = None
     identical = True
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         for r in range(args.rounds):
-            for n in sizes:
+            for n, poll in variants:
                 before = load()
-                wall, results = run_fleet(n, args.task, args.episodes, Path(tmp), f"r{r}")
-                walls[n].append(wall)
+                wall, results = run_fleet(n, args.task, args.episodes, Path(tmp), f"r{r}", poll)
+                walls[n, poll].append(wall)
                 if reference is None:
                     reference = results
                 identical &= results == reference
-                print(f"round {r + 1} N={n}: {args.episodes} episodes in {wall:6.2f} s = "
+                print(f"round {r + 1} N={n} busy_poll {poll:g} s: {args.episodes} episodes in {wall:6.2f} s = "
                       f"{args.episodes / wall:5.2f} episodes/s, RTF {args.episodes * horizon / wall:5.2f}x "
                       f"(load {before} -> {load()})", flush=True)
-    base = statistics.median(walls[sizes[0]])
-    print(f"\n| N | episodes/s (median of {args.rounds}) | aggregate RTF | speed-up vs N={sizes[0]} |")
-    print("|---|---|---|---|")
+    print(f"\n| N | busy poll | episodes/s (median of {args.rounds}) | aggregate RTF | speed-up vs N={sizes[0]} |")
+    print("|---|---|---|---|---|")
     rows = []
-    for n in sizes:
-        wall = statistics.median(walls[n])
-        rows.append((n, args.episodes / wall, base / wall))
-        print(f"| {n} | {args.episodes / wall:.2f} | {args.episodes * horizon / wall:.2f}x | x{base / wall:.2f} |")
-    print(f"\nresults identical for every fleet size and round: {'yes' if identical else 'NO'}; "
+    for n, poll in variants:
+        base = statistics.median(walls[sizes[0], poll])
+        wall = statistics.median(walls[n, poll])
+        label = f"{n}" if len(polls) == 1 else f"{n}, {poll:g} s"
+        rows.append((label, args.episodes / wall, base / wall))
+        print(f"| {n} | {poll:g} s | {args.episodes / wall:.2f} | {args.episodes * horizon / wall:.2f}x | "
+              f"x{base / wall:.2f} |")
+    print(f"\nresults identical for every fleet size, window and round: {'yes' if identical else 'NO'}; "
           f"load average at the end {load()}")
     if args.out is not None:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         args.out.mkdir(parents=True, exist_ok=True)
-        fig, ax = plt.subplots(figsize=(5, 3.5), constrained_layout=True)
-        ax.bar([str(n) for n, _, _ in rows], [e for _, e, _ in rows], color="tab:blue")
+        fig, ax = plt.subplots(figsize=(5 + len(rows) // 3, 3.5), constrained_layout=True)
+        ax.bar([label for label, _, _ in rows], [e for _, e, _ in rows], color="tab:blue")
         for i, (_, e, x) in enumerate(rows):
             ax.text(i, e, f"x{x:.2f}", ha="center", va="bottom")
-        ax.set_xlabel("simulator/agent pairs N")
+        ax.set_xlabel("simulator/agent pairs N" + ("" if len(polls) == 1 else ", busy polling"))
         ax.set_ylabel(f"{args.task} episodes / s")
         ax.set_title(f"independent episodes on a fleet ({os.cpu_count()} cores, load {load()})", fontsize=9)
         fig.savefig(args.out / "fleet.png", dpi=110)
