@@ -18,6 +18,9 @@ it. Backends:
   demo`` uses): the simulator's bus listens on a free loopback port, the agent's connects to it;
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
+On ``zenoh`` and ``direct`` both buses busy-poll as ``ersac-hil demo``'s do (``--busy-poll S``,
+default the demo's for one pair on this machine, ``ersac_hil.demo.busy_poll_for``; 0 = off).
+
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
 
 Side by side with another checkout (an older main, its own venv or this one)::
@@ -25,7 +28,7 @@ Side by side with another checkout (an older main, its own venv or this one)::
     python bench/episode.py --baseline ../old-main [--baseline-bus remote] [--rounds 3] [--only zenoh]
 
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
-agent first, then this one's (``--baseline-bus remote``: the other side over the loopback hub,
+agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's (``--baseline-bus remote``: the other side over the loopback hub,
 for a main without CAN over Zenoh), prints both rows per round with the load average, and
 checks that both gave the same cost terms and telemetry for every episode (same seed, same
 policy: bit-identical; lock-step only, real-time episodes follow the wall clock).
@@ -45,6 +48,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
+from ersac_hil.demo import busy_poll_for  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter, free_tcp_port  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import EpisodeRequest, EpisodeResult, ErrorReply, KeySpace  # noqa: E402
@@ -224,8 +228,9 @@ def main() -> int:
     parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
     parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT), default="zenoh")
     parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
-    parser.add_argument("--busy-poll", dest="busy_poll", type=float, default=0.0, metavar="S",
-                        help="CAN over Zenoh: this checkout's buses poll S seconds after each sample")
+    parser.add_argument("--busy-poll", dest="busy_poll", type=float, default=busy_poll_for(1), metavar="S",
+                        help="CAN over Zenoh: this checkout's buses poll S seconds after each sample "
+                             f"(default {busy_poll_for(1):g}, the demo's for one pair here; 0 = off)")
     args = parser.parse_args()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")
@@ -241,9 +246,9 @@ def main() -> int:
         with LoopbackHub() as hub:
             report("remote", processes(hub.bus_config, args.episodes, args.realtime))
     if "zenoh" in only:
-        report("zenoh", processes(None, args.episodes, args.realtime))
+        report("zenoh", processes(None, args.episodes, args.realtime, busy_poll=args.busy_poll))
     if DIRECT in only:
-        report(DIRECT, processes(DIRECT, args.episodes, args.realtime))
+        report(DIRECT, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll))
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.only:
         return 0

@@ -8,8 +8,9 @@ episodes (fixed theta, scenario seeds 0..M-1) go through ``ersac_hil.daemon.flee
 daemon's dispatcher: each request to whichever agent is free). After one warm-up episode per
 agent, the wall time from the first request to the last result gives episodes per second,
 the aggregate real-time factor (simulated seconds per wall second) and the speed-up over N = 1.
-``--busy-poll`` gives the CAN buses' polling window(s) in seconds (``Stack(busy_poll=...)``,
-default the demo's; several, comma-separated, are compared). The sizes (and windows) are
+``--busy-poll`` gives the CAN buses' polling window(s) in seconds (``Stack(busy_poll=...)``;
+default ``auto``, the demo's choice for each N, ``ersac_hil.demo.busy_poll_for``; several,
+comma-separated, are compared). The sizes (and windows) are
 interleaved round by round (1, 2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside every figure (a shared 2-core machine).
 
 It also checks that the results do not depend on the fleet: every episode's cost terms must be
@@ -33,7 +34,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
-from ersac_hil.demo import BUSY_POLL_S, Stack  # noqa: E402
+from ersac_hil.demo import Stack, busy_poll_for  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
 from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
 
@@ -45,7 +46,7 @@ def load() -> str:
 
 
 def run_fleet(n: int, task: str, m: int, logs: Path, tag: str,
-              busy_poll: float = BUSY_POLL_S) -> tuple[float, dict[int, dict]]:
+              busy_poll: float | None = None) -> tuple[float, dict[int, dict]]:
     """Start the stack with ``n`` pairs, run ``m`` episodes; (wall seconds, seed -> cost terms)."""
     stop = threading.Event()
     with Stack(logs / f"{tag}-n{n}-p{busy_poll}", stop, lambda _line: None, pairs=n, fleet=True,
@@ -85,6 +86,10 @@ def run_fleet(n: int, task: str, m: int, logs: Path, tag: str,
             session.close()
 
 
+def _window(n: int, poll: float | None) -> str:
+    return f"{busy_poll_for(n):g} s (auto)" if poll is None else f"{poll:g} s"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fleet", default="1,2", help="fleet sizes, comma-separated (default 1,2)")
@@ -92,15 +97,15 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default 2)")
     ap.add_argument("--task", choices=sorted(THETA), default="bracing")
     ap.add_argument("--out", type=Path, help="write fleet.png here")
-    ap.add_argument("--busy-poll", dest="busy_poll", default=str(BUSY_POLL_S),
-                    help=f"CAN buses' polling window(s) in s, comma-separated (default {BUSY_POLL_S}; 0 = off)")
+    ap.add_argument("--busy-poll", dest="busy_poll", default="auto",
+                    help="CAN buses' polling window(s) in s, comma-separated (0 = off; default auto: the demo's)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.fleet.split(",")]
-    polls = [float(x) for x in args.busy_poll.split(",")]
+    polls = [None if x == "auto" else float(x) for x in args.busy_poll.split(",")]
     variants = [(n, p) for n in sizes for p in polls]
     horizon = get_task(args.task).horizon_s
     print(f"{args.task}: {args.episodes} independent episodes per fleet size, sizes {sizes}, busy polling "
-          f"{polls} s, {args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}", flush=True)
+          f"{args.busy_poll}, {args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}", flush=True)
     walls: dict[tuple[int, float], list[float]] = {v: [] for v in variants}
     reference: dict[int, dict] | None = None
     identical = True
@@ -113,7 +118,7 @@ def main() -> int:
                 if reference is None:
                     reference = results
                 identical &= results == reference
-                print(f"round {r + 1} N={n} busy_poll {poll:g} s: {args.episodes} episodes in {wall:6.2f} s = "
+                print(f"round {r + 1} N={n} busy_poll {_window(n, poll)}: {args.episodes} episodes in {wall:6.2f} s = "
                       f"{args.episodes / wall:5.2f} episodes/s, RTF {args.episodes * horizon / wall:5.2f}x "
                       f"(load {before} -> {load()})", flush=True)
     print(f"\n| N | busy poll | episodes/s (median of {args.rounds}) | aggregate RTF | speed-up vs N={sizes[0]} |")
@@ -122,9 +127,9 @@ def main() -> int:
     for n, poll in variants:
         base = statistics.median(walls[sizes[0], poll])
         wall = statistics.median(walls[n, poll])
-        label = f"{n}" if len(polls) == 1 else f"{n}, {poll:g} s"
+        label = f"{n}" if len(polls) == 1 else f"{n}, {_window(n, poll)}"
         rows.append((label, args.episodes / wall, base / wall))
-        print(f"| {n} | {poll:g} s | {args.episodes / wall:.2f} | {args.episodes * horizon / wall:.2f}x | "
+        print(f"| {n} | {_window(n, poll)} | {args.episodes / wall:.2f} | {args.episodes * horizon / wall:.2f}x | "
               f"x{base / wall:.2f} |")
     print(f"\nresults identical for every fleet size, window and round: {'yes' if identical else 'NO'}; "
           f"load average at the end {load()}")

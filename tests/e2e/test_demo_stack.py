@@ -138,7 +138,7 @@ def test_each_can_bus_gets_one_bus_kwargs_flag_with_its_identity_and_polling(tmp
 
     from ersac_hil.demo import Stack
     from protocol.can.busconfig import parse_bus_kwargs
-    stack = Stack(tmp_path / "logs", threading.Event(), busy_poll=busy_poll)
+    stack = Stack(tmp_path / "logs", threading.Event(), busy_poll=busy_poll)  # explicit: any core count
     stack.roles = {"agent": "agent.json5", "simulator": "simulator.json5"}
     sim, channel = stack._direct_listener("ersac-ubot1")
     for argv, role, first in ((sim, "simulator", (("listen", channel.split("@")[1]),)),
@@ -149,3 +149,10 @@ def test_each_can_bus_gets_one_bus_kwargs_flag_with_its_identity_and_polling(tmp
         assert parse_bus_kwargs(argv[argv.index("--bus-kwargs") + 1:]) == expected
     stack.roles = {}
     assert ("--bus-kwargs" in stack.can_args("agent", channel)) == bool(busy_poll)
+
+
+@pytest.mark.parametrize("pairs, cores, expected", [(1, 2, 0.002), (2, 2, 0.0), (2, 4, 0.002), (3, 4, 0.0),
+                                                    (1, 1, 0.0)])
+def test_pairs_poll_by_default_only_with_a_core_for_each_polling_bus(pairs, cores, expected):
+    from ersac_hil.demo import BUSY_POLL_S, busy_poll_for
+    assert busy_poll_for(pairs, cores) == (BUSY_POLL_S if expected else 0.0)
