@@ -18,8 +18,10 @@ it. Backends:
   demo`` uses): the simulator's bus listens on a free loopback port, the agent's connects to it;
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
-On ``zenoh`` and ``direct`` both buses busy-poll as ``ersac-hil demo``'s do (``--busy-poll S``,
-default the demo's for one pair on this machine, ``ersac_hil.demo.busy_poll_for``; 0 = off).
+On ``zenoh`` and ``direct`` both buses busy-poll in lock-step as ``ersac-hil demo``'s do
+(``--busy-poll S``, default the demo's for one pair on this machine,
+``ersac_hil.demo.busy_poll_for``; 0 = off); not in real time by default (a sample every 5 ms
+outlasts the window: nothing gained, docs/performance.md).
 
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
 
@@ -228,10 +230,13 @@ def main() -> int:
     parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
     parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT), default="zenoh")
     parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
-    parser.add_argument("--busy-poll", dest="busy_poll", type=float, default=busy_poll_for(1), metavar="S",
+    parser.add_argument("--busy-poll", dest="busy_poll", type=float, metavar="S",
                         help="CAN over Zenoh: this checkout's buses poll S seconds after each sample "
-                             f"(default {busy_poll_for(1):g}, the demo's for one pair here; 0 = off)")
+                             f"(default {busy_poll_for(1):g} in lock-step, the demo's for one pair here; "
+                             "0 in real time, where it gained nothing; 0 = off)")
     args = parser.parse_args()
+    if args.busy_poll is None:
+        args.busy_poll = 0.0 if args.realtime else busy_poll_for(1)
     mode = "real-time" if args.realtime else "lock-step"
     print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")
     print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {args.episodes} per task; "
