@@ -43,13 +43,14 @@ to the defaults or the ``zenoh_config`` file.
 
 Busy polling (``busy_poll=SECONDS``, off by default): the bus takes its samples from Zenoh
 on a receive thread of its own that, after each sample, keeps asking for the next one
-(yielding the processor and the GIL between tries) for ``busy_poll``
-seconds before it blocks. A lock-step cycle's answer arrives a few hundred microseconds
-after its question: a thread that polls gets it without being woken, and its processor
-never idles in between (on a virtual machine an idle processor costs tens of microseconds to
-wake, on every hop). It costs a processor's time while frames flow, at most ``busy_poll``
-after the last one: for simulated robots, benchmarks and CI (``ersac-hil demo``, ``Stack``
-and ``bench/episode.py`` use it), not for a robot's real-time bus. The delivery is the same:
+(yielding the processor and the GIL between tries) for ``busy_poll`` seconds before it
+blocks. A lock-step cycle's answer arrives a few hundred microseconds after its question: a
+thread that polls gets it without being woken, and its processor never idles in between (on
+a virtual machine an idle processor costs tens of microseconds to wake, on every hop). It
+costs a processor's time while frames flow, at most ``busy_poll`` after the last one: for
+simulated robots in lock-step where there is a core for each polling bus (``ersac-hil
+demo``, ``Stack`` and the benchmarks, ``ersac_hil.demo.busy_poll_for``), not for a robot's
+real-time bus (a frame every 5 ms outlasts the window). The delivery is the same:
 every frame, in order, to ``recv()`` or the push listeners, on one thread.
 
 Push delivery (optional, :meth:`ZenohBus.push_notifier`): instead of a ``can.Notifier`` thread
