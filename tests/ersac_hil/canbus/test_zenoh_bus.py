@@ -8,6 +8,7 @@ a secured router (TLS, the roles' certificates and access control).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -382,16 +383,25 @@ def test_shutdown_while_another_thread_sends_is_clean(can_router):
 
 # -- busy polling ---------------------------------------------------------------------------
 
+@contextlib.contextmanager
+def _polling_link(router, busy_poll):  # noqa: ANN001, ANN202
+    """A plain bus and a busy-polling bus on a new channel, linked; both shut down after."""
+    channel = _channel(router)
+    a = can.Bus(interface="zenoh", channel=channel)
+    b = can.Bus(interface="zenoh", channel=channel, busy_poll=busy_poll)
+    try:
+        _wait_linked(a, b)
+        yield a, b
+    finally:
+        a.shutdown()
+        b.shutdown()
+
+
 @pytest.fixture(scope="module")
 def polling_pair(can_router):
-    """A plain bus and a busy-polling bus (1 ms) on one channel."""
-    channel = _channel(can_router)
-    a = can.Bus(interface="zenoh", channel=channel)
-    b = can.Bus(interface="zenoh", channel=channel, busy_poll="0.001")
-    _wait_linked(a, b)
-    yield a, b
-    a.shutdown()
-    b.shutdown()
+    """A plain bus and a busy-polling bus (1 ms, given as python-can configuration's string)."""
+    with _polling_link(can_router, "0.001") as pair:
+        yield pair
 
 
 def _wire(msgs: list[can.Message]) -> list[bytes]:
@@ -426,11 +436,7 @@ def _rx_threads() -> list:
 
 def test_a_busy_polling_bus_pushes_on_its_receive_thread_which_ends_at_shutdown(can_router):
     import threading
-    channel = _channel(can_router)
-    a = can.Bus(interface="zenoh", channel=channel)
-    b = can.Bus(interface="zenoh", channel=channel, busy_poll=0.002)
-    try:
-        _wait_linked(a, b)
+    with _polling_link(can_router, 0.002) as (a, b):
         got: list[tuple[int, str]] = []
         done = threading.Event()
 
@@ -445,25 +451,19 @@ def test_a_busy_polling_bus_pushes_on_its_receive_thread_which_ends_at_shutdown(
         assert done.wait(TIMEOUT)
         assert [i for i, _ in got] == [i for k in range(10) for i in (0x180 + k, 0x280 + k)]
         assert {name for _, name in got} == {f"zenoh-can-rx {b.key}"}
-    finally:
-        a.shutdown()
-        b.shutdown()
     assert not any(t.name == f"zenoh-can-rx {b.key}" for t in _rx_threads())
 
 
 def _cpu_ticks(thread) -> int:  # noqa: ANN001
     """User plus system clock ticks the kernel has charged ``thread`` (Linux)."""
-    fields = open(f"/proc/self/task/{thread.native_id}/stat").read().rsplit(")", 1)[1].split()
+    with open(f"/proc/self/task/{thread.native_id}/stat") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()
     return int(fields[11]) + int(fields[12])
 
 
 def test_a_busy_polling_bus_blocks_once_frames_stop(can_router):
     """It polls only within ``busy_poll`` of the last frame: idle, its thread uses no processor."""
-    channel = _channel(can_router)
-    a = can.Bus(interface="zenoh", channel=channel)
-    b = can.Bus(interface="zenoh", channel=channel, busy_poll=0.05)
-    try:
-        _wait_linked(a, b)
+    with _polling_link(can_router, 0.05) as (a, b):
         thread = next(t for t in _rx_threads() if t.name.endswith(b.key))
         time.sleep(0.2)  # past the window: blocked
         before = _cpu_ticks(thread)
@@ -472,6 +472,3 @@ def test_a_busy_polling_bus_blocks_once_frames_stop(can_router):
         a.send(can.Message(arbitration_id=0x123, data=b"go"))
         assert b.recv(TIMEOUT) is not None
         assert idle <= 2, f"an idle busy-polling bus used {idle} ticks in 1 s"
-    finally:
-        a.shutdown()
-        b.shutdown()
