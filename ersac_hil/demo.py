@@ -75,7 +75,8 @@ def busy_poll_for(pairs: int, cores: int | None = None) -> float:
     the machine has a core for each polling bus (two a pair), else 0. Measured on 2 cores: one
     polling pair ran 1.4x the episodes of one sleeping pair, two polling pairs 0.85x of two
     sleeping ones (docs/performance.md)."""
-    cores = (os.cpu_count() or 1) if cores is None else cores
+    if cores is None:  # the processors this process may run on (a container's affinity), else all
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return BUSY_POLL_S if 2 * pairs <= cores else 0.0
 
 
