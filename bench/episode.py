@@ -30,8 +30,9 @@ Side by side with another checkout (an older main, its own venv or this one)::
     python bench/episode.py --baseline ../old-main [--baseline-bus remote] [--rounds 3] [--only zenoh]
 
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
-agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's (``--baseline-bus remote``: the other side over the loopback hub,
-for a main without CAN over Zenoh), prints both rows per round with the load average, and
+agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's
+(``--baseline-bus remote``: the other side over the loopback hub, for a main without CAN over
+Zenoh), prints both rows per round with the load average, and
 checks that both gave the same cost terms and telemetry for every episode (same seed, same
 policy: bit-identical; lock-step only, real-time episodes follow the wall clock).
 """

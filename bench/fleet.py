@@ -1,6 +1,7 @@
 """Throughput of independent episodes on a fleet of N simulator/agent pairs behind one client.
 
-    python bench/fleet.py [--fleet 1,2] [--busy-poll 0.002,0] [--episodes 16] [--rounds 2] [--task bracing] [--out DIR]
+    python bench/fleet.py [--fleet 1,2] [--busy-poll auto,0] [--episodes 16] [--rounds 2] [--task bracing]
+                          [--out DIR]
 
 For each N the stack of ``ersac-hil demo --fleet N`` is started (embedded router, N simulator
 and N agent processes, each pair on its own CAN-over-Zenoh channel); the same M independent
@@ -10,8 +11,9 @@ agent, the wall time from the first request to the last result gives episodes pe
 the aggregate real-time factor (simulated seconds per wall second) and the speed-up over N = 1.
 ``--busy-poll`` gives the CAN buses' polling window(s) in seconds (``Stack(busy_poll=...)``;
 default ``auto``, the demo's choice for each N, ``ersac_hil.demo.busy_poll_for``; several,
-comma-separated, are compared). The sizes (and windows) are
-interleaved round by round (1, 2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside every figure (a shared 2-core machine).
+comma-separated, are compared). The sizes (and windows) are interleaved round by round (1,
+2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside
+every figure (a shared 2-core machine).
 
 It also checks that the results do not depend on the fleet: every episode's cost terms must be
 bit-identical for every N and round (the scenario seed travels in the request).
@@ -105,8 +107,9 @@ def main() -> int:
     variants = [(n, p) for n in sizes for p in polls]
     horizon = get_task(args.task).horizon_s
     print(f"{args.task}: {args.episodes} independent episodes per fleet size, sizes {sizes}, busy polling "
-          f"{args.busy_poll}, {args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}", flush=True)
-    walls: dict[tuple[int, float], list[float]] = {v: [] for v in variants}
+          f"{args.busy_poll}, {args.rounds} interleaved rounds; {os.cpu_count()} cores; load average {load()}",
+          flush=True)
+    walls: dict[tuple[int, float | None], list[float]] = {v: [] for v in variants}
     reference: dict[int, dict] | None = None
     identical = True
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
@@ -118,7 +121,8 @@ def main() -> int:
                 if reference is None:
                     reference = results
                 identical &= results == reference
-                print(f"round {r + 1} N={n} busy_poll {_window(n, poll)}: {args.episodes} episodes in {wall:6.2f} s = "
+                print(f"round {r + 1} N={n} busy_poll {_window(n, poll)}: {args.episodes} episodes in "
+                      f"{wall:6.2f} s = "
                       f"{args.episodes / wall:5.2f} episodes/s, RTF {args.episodes * horizon / wall:5.2f}x "
                       f"(load {before} -> {load()})", flush=True)
     print(f"\n| N | busy poll | episodes/s (median of {args.rounds}) | aggregate RTF | speed-up vs N={sizes[0]} |")

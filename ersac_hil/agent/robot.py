@@ -189,7 +189,7 @@ class RobotParameters:
                     add(p.mass, origin[0] + p.x * c - p.z * s, origin[1] + p.x * s + p.z * c, p.iyy)
         if payload:  # hand_position of both hands, body upright: numpy's sines and cosines in one call each
             (sl, el), (sr, er) = left, right
-            angles = np.array([0.0, sl - 0.0, sl + el - 0.0, sr - 0.0, sr + er - 0.0], dtype=float)
+            angles = np.array([0.0, sl, sl + el, sr, sr + er], dtype=float)  # x - 0.0 is x: pitch 0
             sin, cos = np.sin(angles).tolist(), np.cos(angles).tolist()
             hxl, hzl = self._hand(sin[0], cos[0], sin[1], cos[1], sin[2], cos[2])
             hxr, hzr = self._hand(sin[0], cos[0], sin[3], cos[3], sin[4], cos[4])
