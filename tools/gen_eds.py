@@ -12,9 +12,10 @@ by `python tools/gen_protocol_doc.py`.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from protocol.can import cia402
 from protocol.can.devices import (AGENT_NODE_ID, ARM_LEFT, CONSUMER_HEARTBEAT_MS, HEARTBEAT_PERIOD_MS,
                                 TORSO, WHEELS)
 from protocol.can.objects import (OBJECTS, SPLINE_MAX_KNOTS, WHEEL_POSITION_OBJECT, DataType, Index,
@@ -36,10 +37,12 @@ class Var:
 
 @dataclass(frozen=True)
 class Obj:
-    """A manufacturer object of one device: VAR (``sub_names`` empty) or ARRAY over them."""
+    """An application object of one device: VAR (``sub_names`` and ``subs`` empty), ARRAY over
+    ``sub_names`` (one spec, one default), or RECORD of ``subs`` (name, spec, default each)."""
     spec: ObjectSpec
     default: str = "0"
     sub_names: tuple[str, ...] = ()
+    subs: tuple[tuple[str, ObjectSpec, str], ...] = ()
 
     @property
     def index(self) -> int:
@@ -56,6 +59,10 @@ class Device:
     objects: list[Obj] = field(default_factory=list)
     rpdos: list[tuple[tuple[int, int, int], ...]] = field(default_factory=list)
     tpdos: list[tuple[tuple[int, int, int], ...]] = field(default_factory=list)
+    device_type: int = 0
+    events: dict[tuple[str, int], int] = field(default_factory=dict)
+    """Event-driven PDOs (transmission type 255) by (``"rpdo"``/``"tpdo"``, number), with the
+    TPDO's event timer in ms; the others are synchronous (type 1). An empty map: a disabled PDO."""
 
 
 # ---- manufacturer objects of each device ------------------------------------------------------
@@ -138,10 +145,63 @@ def devices() -> list[Device]:
         obj(Index.CABLE_TENSION, axes=("left", "right"))] + [obj(i) for i in (
             Index.BOTTLE_HEIGHT, Index.SIM_TIME, Index.GROUND_TRUTH_FLAGS, Index.BALANCE_FREE,
             Index.BOTTLE_COM_HEIGHT)]
-    return [wheel, torso, arm, imu, testbench]
+    return [wheel, torso, arm, imu, testbench, cia402_drive()]
+
+
+def cia402_drive() -> Device:
+    """One-axis CiA 402 servo drive (the PDO layout in ``protocol.can.cia402``)."""
+    c, ix = cia402.OBJECTS, cia402.Index
+
+    def var(index: int, default: object = 0) -> Obj:
+        return Obj(c[index], str(default))
+
+    def record(index: int, *subs: tuple[str, object]) -> Obj:
+        spec = c[index]
+        return Obj(spec, subs=tuple((f"{spec.name} {name}", spec, str(default)) for name, default in subs))
+
+    period = record(ix.INTERPOLATION_PERIOD, ("value", 5), ("index", -3))
+    value, index = period.subs
+    period = replace(period, subs=(value, (index[0], replace(index[1], dtype=DataType.INT8, low=-128,
+                                                                   high=127), index[2])))
+    drive = Device("cia402_drive.eds", "ersac-hil CiA 402 servo drive", 0x0402,
+                   "One-axis CiA 402 servo drive: cyclic synchronous position with the drive's own "
+                   "impedance (0x2012), cyclic synchronous torque", ("axis",),
+                   device_type=cia402.DEVICE_TYPE,
+                   events={("rpdo", 1): 0, ("tpdo", 1): cia402.EVENT_TIMER_MS})
+    drive.objects = [
+        var(ix.ERROR_CODE), var(ix.CONTROLWORD), var(ix.STATUSWORD),
+        var(ix.QUICK_STOP_OPTION, int(cia402.QUICK_STOP_DEFAULT)), var(ix.MODES_OF_OPERATION),
+        var(ix.MODES_DISPLAY), var(ix.POSITION_ACTUAL), var(ix.VELOCITY_ACTUAL), var(ix.TARGET_TORQUE),
+        var(ix.MAX_TORQUE, 1000), var(ix.MAX_CURRENT, 1000), var(ix.RATED_CURRENT, 10000),
+        var(ix.RATED_TORQUE, 300), var(ix.TORQUE_ACTUAL), var(ix.CURRENT_ACTUAL),
+        var(ix.DC_LINK_VOLTAGE, 24000), var(ix.TARGET_POSITION),
+        record(ix.SOFTWARE_POSITION_LIMIT, ("min", -(1 << 31)), ("max", (1 << 31) - 1)),
+        var(ix.MAX_MOTOR_SPEED, 10000),
+        record(ix.ENCODER_RESOLUTION, ("increments", cia402.ENCODER_INCREMENTS), ("motor revolutions", 1)),
+        record(ix.GEAR_RATIO, ("motor revolutions", 1), ("shaft revolutions", 1)),
+        period, var(ix.SUPPORTED_MODES, f"0x{cia402.SUPPORTED_MODES:08X}"),
+        record(ix.IMPEDANCE, ("Kp", 50000), ("Kd", 5000)),
+    ]
+    cw, mode = (ix.CONTROLWORD, 0, 16), (ix.MODES_OF_OPERATION, 0, 8)
+    sw = (ix.STATUSWORD, 0, 16)
+    drive.rpdos = [pdo(cw, mode), pdo((ix.TARGET_POSITION, 0, 32), (ix.TARGET_TORQUE, 0, 16)), pdo(), pdo()]
+    drive.tpdos = [pdo(sw, (ix.MODES_DISPLAY, 0, 8)), pdo(sw, (ix.POSITION_ACTUAL, 0, 32)),
+                   pdo((ix.VELOCITY_ACTUAL, 0, 32), (ix.TORQUE_ACTUAL, 0, 16), (ix.CURRENT_ACTUAL, 0, 16)),
+                   pdo()]
+    return drive
 
 
 # ---- EDS writer -----------------------------------------------------------------------------
+def _cob_id(base: int, entries: tuple) -> str:
+    """The pre-defined COB-ID; a PDO without entries is disabled (bit 31, "not valid")."""
+    return f"$NODEID+0x{base:X}" if entries else f"$NODEID+0x{0x8000_0000 | base:X}"
+
+
+def _trans_type(dev: Device, kind: str, n: int, entries: tuple) -> str:
+    """1 (synchronous, every SYNC), or 255 for an event-driven or disabled PDO."""
+    return "255" if (kind, n + 1) in dev.events or not entries else "1"
+
+
 def _var_lines(name: str, v: Var) -> list[str]:
     return [f"ParameterName={name}", "ObjectType=0x7", f"DataType=0x{v.dtype:04X}",
             f"AccessType={v.access}", f"DefaultValue={v.default}", "PDOMapping=0"]
@@ -185,6 +245,11 @@ def _record(out: list[str], index: int, name: str, subs: list[tuple[str, Var]], 
 
 
 def _manufacturer(out: list[str], o: Obj) -> None:
+    if o.subs:
+        _record_head(out, o.index, o.spec.name, len(o.subs), 0x9)
+        for i, (name, spec, default) in enumerate(o.subs, start=1):
+            _section(out, f"{o.index:04X}sub{i:X}", _spec_lines(name, spec, default))
+        return
     if not o.sub_names:
         _section(out, f"{o.index:04X}", _spec_lines(o.spec.name, o.spec, o.default))
         return
@@ -201,7 +266,7 @@ def render(dev: Device) -> str:
     def var(index: int, v: Var) -> None:
         _section(body, f"{index:04X}", _var_lines(v.name, v))
 
-    var(0x1000, Var("Device type", DataType.UINT32, "ro", "0x00000000"))
+    var(0x1000, Var("Device type", DataType.UINT32, "ro", f"0x{dev.device_type:08X}"))
     var(0x1001, Var("Error register", DataType.UINT8, "ro", "0"))
     optional += [0x1005, 0x1008, 0x1014, 0x1016, 0x1017]
     var(0x1005, Var("COB-ID SYNC", DataType.UINT32, "rw", "0x00000080"))
@@ -221,8 +286,8 @@ def render(dev: Device) -> str:
     for n, entries in enumerate(dev.rpdos):
         optional += [0x1400 + n, 0x1600 + n]
         _record(body, 0x1400 + n, f"RPDO {n + 1} communication parameter", [
-            ("COB-ID used by RPDO", _u32(f"$NODEID+0x{0x200 + 0x100 * n:X}")),
-            ("Transmission type", Var("", DataType.UINT8, "rw", "1")),
+            ("COB-ID used by RPDO", _u32(_cob_id(0x200 + 0x100 * n, entries))),
+            ("Transmission type", Var("", DataType.UINT8, "rw", _trans_type(dev, "rpdo", n, entries))),
         ])
         _record(body, 0x1600 + n, f"RPDO {n + 1} mapping parameter", [
             (f"Mapped object {i + 1}", _u32(f"0x{ix:04X}{sub:02X}{bits:02X}"))
@@ -230,18 +295,20 @@ def render(dev: Device) -> str:
     for n, entries in enumerate(dev.tpdos):
         optional += [0x1800 + n, 0x1A00 + n]
         _record(body, 0x1800 + n, f"TPDO {n + 1} communication parameter", [
-            ("COB-ID used by TPDO", _u32(f"$NODEID+0x{0x180 + 0x100 * n:X}")),
-            ("Transmission type", Var("", DataType.UINT8, "rw", "1")),
+            ("COB-ID used by TPDO", _u32(_cob_id(0x180 + 0x100 * n, entries))),
+            ("Transmission type", Var("", DataType.UINT8, "rw", _trans_type(dev, "tpdo", n, entries))),
             ("Inhibit time", Var("", DataType.UINT16, "rw", "0")),
             ("Reserved", Var("", DataType.UINT8, "rw", "0")),
-            ("Event timer", Var("", DataType.UINT16, "rw", "0")),
+            ("Event timer", Var("", DataType.UINT16, "rw", str(dev.events.get(("tpdo", n + 1), 0)))),
         ])
         _record(body, 0x1A00 + n, f"TPDO {n + 1} mapping parameter", [
             (f"Mapped object {i + 1}", _u32(f"0x{ix:04X}{sub:02X}{bits:02X}"))
             for i, (ix, sub, bits) in enumerate(entries)])
-    manufacturer = sorted(dev.objects, key=lambda o: o.index)
-    for o in manufacturer:
+    application = sorted(dev.objects, key=lambda o: o.index)
+    for o in application:
         _manufacturer(body, o)
+    optional += [o.index for o in application if o.index >= 0x6000]
+    manufacturer = [o for o in application if o.index < 0x6000]
 
     head: list[str] = []
     _section(head, "FileInfo", [f"FileName={dev.file}", "FileVersion=1", "FileRevision=0",
