@@ -35,6 +35,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from ersac_hil.cli_args import output_dir
 from ersac_hil.roles import ROLES, access_control, identities
 
 __all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "common_name", "router_config",
@@ -206,6 +207,8 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
             raise CertError(f"robot {robot!r}: {exc}") from None
     if len(set(robots)) != len(robots):
         raise CertError(f"robots named twice: {sorted(r for r in set(robots) if list(robots).count(r) > 1)}")
+    if out.exists() and not out.is_dir():
+        raise CertError(f"{out} is a file, not a directory")
     if (out / "ca.crt").exists() and not force:
         raise CertError(f"{out} already holds a certificate set (ca.crt); use --force to replace it")
     out.mkdir(parents=True, exist_ok=True)
@@ -296,7 +299,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("certs", help="certificates and Zenoh configs of the roles (mTLS + access control)")
     actions = p.add_subparsers(dest="certs_command", required=True)
     q = actions.add_parser("init", help=f"a CA, one key/cert and json5 config per role ({', '.join(ROLES)})")
-    q.add_argument("dir", help="directory to write into")
+    q.add_argument("dir", type=output_dir, help="directory to write into")
     q.add_argument("--router", action="append", metavar="ENDPOINT",
                    help=f"router TLS endpoint, repeatable (default {DEFAULT_ROUTER}); clients connect to the first")
     q.add_argument("--host", action="append", metavar="NAME",

@@ -49,7 +49,7 @@ def _fail(message: str, code: int = 2) -> int:
 def _daemon(args: argparse.Namespace) -> int:
     from ersac_hil.lifecycle import serve
 
-    from .config import RESUME_LATEST, RESUME_NEW, ConfigError, load_toml, merge
+    from .config import ConfigError, load_toml, merge
     from .runs import RunFinished
     from .service import Daemon
     from .store import StoreError
@@ -70,8 +70,6 @@ def _daemon(args: argparse.Namespace) -> int:
     }
     try:
         config = merge(load_toml(args.config) if args.config else {}, flags)
-        if config.resume not in (RESUME_NEW, RESUME_LATEST) and not Path(config.db).exists():
-            return _fail(f"no run {config.resume!r}: no store at {config.db}")  # and none made
         daemon = Daemon(config)
         code = serve(daemon, until=daemon.finished)
     except RunFinished as exc:  # a supervisor's restart after the end: not an error

@@ -190,9 +190,9 @@ def write_report(db: str | Path, run_id: str, out: str | Path) -> dict[str, Any]
     from .runs import rebuild_engine  # the learner is rebuilt exactly as the daemon would
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     with Store(db, readonly=True) as store:
         run = store.run(run_id)
+        out.mkdir(parents=True, exist_ok=True)  # only for a run there is
         spec = get_task(run.task)
         episodes = store.ok_episodes(run_id)
         attempts = store.attempts(run_id)

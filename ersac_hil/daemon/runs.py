@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import secrets
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -23,7 +24,8 @@ from .config import LEARNER_FIELDS, LEGACY_SETTINGS, RESUME_LATEST, RESUME_NEW, 
 from .engine import Engine
 from .store import RunNotFound, RunRecord, Store
 
-__all__ = ["RunFinished", "scenario_seed", "episode_id", "new_run_id", "open_run", "rebuild_engine"]
+__all__ = ["RunFinished", "scenario_seed", "episode_id", "new_run_id", "plan_run", "check_store", "open_run",
+           "rebuild_engine"]
 
 
 class RunFinished(Exception):
@@ -49,17 +51,20 @@ def new_run_id() -> str:
     return time.strftime("%Y%m%dT%H%M%S") + "-" + secrets.token_hex(3)
 
 
-def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfig, bool]:
-    """Open the run ``config.resume`` asks for: ``(run, effective config, resumed)``.
-
-    A resumed run keeps its stored learner settings; explicitly given learner settings that
-    differ are refused (``ConfigError``), so a changed command line never silently continues
-    an old run. ``episodes`` may be changed on resume (a new total budget).
+def plan_run(store: Store, config: DaemonConfig) -> RunRecord | None:
+    """The run ``config`` would resume in ``store`` (``None``: a new one), decided by reading
+    only, so :func:`check_store` can refuse before anything is written.
 
     Raises:
         RunFinished: ``resume="latest"`` and the latest matching run is finished.
-        ConfigError: an unknown run id, another robot/task, conflicting learner settings.
+        ConfigError: a store of another robot or task, an unknown run id, a run of another
+            robot/task, conflicting learner settings.
     """
+    runs = store.runs()
+    if runs and not any((r.robot, r.task) == (config.robot, config.task) for r in runs):
+        held = ", ".join(sorted({f"{r.task} on {r.robot}" for r in runs}))
+        raise ConfigError(f"{store.path} is a store of {held}, not of {config.task} on {config.robot}: "
+                          "give another --db")
     run: RunRecord | None = None
     if config.resume == RESUME_LATEST:
         latest = store.latest_run(config.robot, config.task)
@@ -74,6 +79,50 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         if (run.robot, run.task) != (config.robot, config.task):
             raise ConfigError(f"run {run.run_id} is {run.task!r} on {run.robot!r}, not "
                               f"{config.task!r} on {config.robot!r}")
+    if run is not None:
+        stored = {**LEGACY_SETTINGS, **run.settings}
+        given = config.learner_settings()
+        conflicts = [k for k in LEARNER_FIELDS if k in config.explicit and given[k] != stored.get(k)]
+        if conflicts:
+            detail = ", ".join(f"{k}={stored.get(k)!r} (given {given[k]!r})" for k in conflicts)
+            raise ConfigError(
+                f"run {run.run_id} was started with {detail}; pass --new for a new run "
+                "(kappa and weights can be changed at run time over the control plane)")
+    return run
+
+
+def check_store(config: DaemonConfig) -> None:
+    """Refuse (as :func:`plan_run` would) what the daemon cannot run on ``config.db``, before
+    any session is opened: the store is opened read-only and nothing is created or changed
+    (a missing store is fine: it is created once the daemon has its session).
+
+    Raises:
+        StoreError: the file is not an ersac-hil store (or of a schema this code cannot open).
+        ConfigError, RunFinished: see :func:`plan_run`.
+    """
+    path = Path(config.db)
+    if not path.exists():
+        if config.resume not in (RESUME_NEW, RESUME_LATEST):
+            raise ConfigError(f"no run {config.resume!r}: no store at {path}")
+        return
+    with Store(path, readonly=True) as store:
+        plan_run(store, config)
+
+
+def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfig, bool]:
+    """Open the run ``config.resume`` asks for: ``(run, effective config, resumed)``.
+
+    A resumed run keeps its stored learner settings; explicitly given learner settings that
+    differ are refused (``ConfigError``), so a changed command line never silently continues
+    an old run. ``episodes`` may be changed on resume (a new total budget). A store holds the
+    runs of one robot and task: a store with runs of none of ``config``'s is refused.
+
+    Raises:
+        RunFinished: ``resume="latest"`` and the latest matching run is finished.
+        ConfigError: a store of another robot or task, an unknown run id, another
+            robot/task, conflicting learner settings.
+    """
+    run = plan_run(store, config)
     if run is None:
         seed = config.seed if config.seed is not None else secrets.randbits(62)
         settings = {**config.learner_settings(), "seed": seed}
@@ -81,13 +130,6 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         run = store.create_run(new_run_id(), config.robot, config.task, seed, settings)
         return run, config.with_learner_settings(run.settings), False
     stored = {**LEGACY_SETTINGS, **run.settings}
-    given = config.learner_settings()
-    conflicts = [k for k in LEARNER_FIELDS if k in config.explicit and given[k] != stored.get(k)]
-    if conflicts:
-        detail = ", ".join(f"{k}={stored.get(k)!r} (given {given[k]!r})" for k in conflicts)
-        raise ConfigError(
-            f"run {run.run_id} was started with {detail}; pass --new for a new run "
-            "(kappa and weights can be changed at run time over the control plane)")
     effective = config.with_learner_settings(stored)
     if config.episodes is not None and config.episodes != stored.get("episodes"):
         stored["episodes"] = config.episodes

@@ -1,7 +1,9 @@
 """The learner daemon: ERSAC driven against the ``episode/run`` of one agent or a fleet.
 
-Lifecycle (``ersac_hil.lifecycle.serve``): ``start()`` opens the store, opens or resumes the
-run (``learning.LearningRun``), connects to Zenoh, links to the agents (``fleet.Fleet``: one
+Lifecycle (``ersac_hil.lifecycle.serve``): ``start()`` checks an existing store read-only
+(``runs.check_store``: another robot's or task's store, an unknown run id... are refused
+before anything is written), connects to Zenoh, then opens (creates) the store and opens or
+resumes the run (``learning.LearningRun``), links to the agents (``fleet.Fleet``: one
 ``agents.AgentLink`` per robot of ``--robot``, names or key expressions), declares the control
 plane (``control.ControlPlane`` serving ``handlers.ControlHandlers``) and starts the learning
 thread; ``stop()`` cancels the in-flight queries (their attempts are recorded
@@ -55,7 +57,7 @@ from .engine import Proposal
 from .fleet import Finished, Fleet
 from .handlers import ControlHandlers
 from .learning import LearningRun
-from .runs import episode_id, scenario_seed
+from .runs import check_store, episode_id, scenario_seed
 from .store import Store, UpdateRecord
 
 __all__ = ["Daemon", "RunFailed", "EXIT_FAILED", "EXIT_NO_AGENT", "MAX_REDRAWS"]
@@ -120,12 +122,15 @@ class Daemon:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        # nothing is written before the daemon can run: an existing store is checked read-only
+        # first, the store (its directory, the run) is created only once the session is open
+        check_store(self.config)
+        self.session = open_session(resolve_config(self.config.zenoh_options, connect_timeout_s=10.0),
+                                    insecure=self.config.insecure)
         self.store = Store(self.config.db)
         self.learning = learning = LearningRun(self.store, self.config)
         self.config = learning.config
         self.handlers = ControlHandlers(learning, self._print)
-        self.session = open_session(resolve_config(self.config.zenoh_options, connect_timeout_s=10.0),
-                                    insecure=self.config.insecure)
         self.fleet = Fleet(self.session, self.config.prefix, self.config.sources,
                            self.config.episode_timeout_s, self._stop)
         self.control = ControlPlane(self.session, self.keys, self.handlers)

@@ -42,6 +42,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from protocol.zenoh import STATUSES, EpisodeResult, get_task
 
@@ -154,6 +155,10 @@ class StoreError(RuntimeError):
 
 class RunNotFound(StoreError):
     """No run with that id."""
+
+
+def _wal(path: Path) -> Path:
+    return path.with_name(path.name + "-wal")
 
 
 def _dumps(value: Any) -> str:
@@ -309,49 +314,63 @@ class Store:
 
     Args:
         path: database file (created with its directory if missing).
-        readonly: open an existing store for reading (reports); never creates or migrates.
+        readonly: open an existing store for reading (reports); never creates or migrates,
+            and leaves no ``-wal``/``-shm`` files behind that were not there before.
 
     Raises:
-        StoreError: the file is not a store of this schema version.
+        StoreError: the file is not an ersac-hil store (an empty file, another program's
+            SQLite file, not SQLite at all) or of a schema this code cannot open; the file
+            is left as it was.
     """
 
     def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
         self.path = Path(path)
         self._lock = threading.RLock()
+        existed = self.path.exists()
         if readonly:
-            if not self.path.exists():
+            if not self.path.is_file():
                 raise StoreError(f"no store at {self.path}")
-            uri = f"file:{self.path.resolve()}?mode=ro"
+            # without a WAL file beside it nobody has the store open and nothing waits to be
+            # checkpointed: read the file as it is, so that reading creates no -wal/-shm files
+            quiet = "&immutable=1" if not _wal(self.path).exists() else ""
+            uri = f"file:{quote(str(self.path.resolve()))}?mode=ro{quiet}"
             self._db = sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
         else:
+            if existed and not self.path.is_file():
+                raise StoreError(f"{self.path} is not a file")
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False,
                                        timeout=10.0)
         self._db.row_factory = sqlite3.Row
         try:
             self._db.execute("PRAGMA busy_timeout = 10000")
+            # what the file is, read before anything is written to it
+            version = self._db.execute("PRAGMA user_version").fetchone()[0]
+            tables = self._db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
+            if version == 0 and existed:
+                what = "an empty file" if self.path.stat().st_size == 0 else "an SQLite file of another program"
+                raise StoreError(f"{self.path} is not an ersac-hil store ({what})")
+            if version != SCHEMA_VERSION and version not in _MIGRATIONS and existed:
+                raise StoreError(f"{self.path}: store schema {version}, this code needs {SCHEMA_VERSION}")
             if not readonly:
                 mode = self._db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
                 if mode.lower() != "wal":
                     raise StoreError(f"{self.path}: cannot switch to WAL (journal_mode={mode})")
                 self._db.execute("PRAGMA synchronous = FULL")
             self._db.execute("PRAGMA foreign_keys = ON")
-            version = self._db.execute("PRAGMA user_version").fetchone()[0]
-            if version == 0 and not readonly:
-                tables = self._db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
-                if tables:
-                    raise StoreError(f"{self.path} is an SQLite file but not an ersac-hil store")
+            if version == 0 and not tables:  # a new file
                 self._db.executescript(_SCHEMA)
             elif version in _MIGRATIONS and not readonly:
                 while version in _MIGRATIONS:  # each step in its own transaction
                     self._db.executescript(f"BEGIN; {_MIGRATIONS[version]}; "
                                            f"PRAGMA user_version = {version + 1}; COMMIT;")
                     version += 1
-            elif version != SCHEMA_VERSION and not (readonly and version in _MIGRATIONS):
-                raise StoreError(f"{self.path}: store schema {version}, this code needs {SCHEMA_VERSION}")
         except sqlite3.DatabaseError as exc:
             self._db.close()
-            raise StoreError(f"{self.path}: {exc}") from exc
+            if not existed:
+                self.path.unlink(missing_ok=True)
+            detail = f"not an ersac-hil store ({exc})" if existed else str(exc)
+            raise StoreError(f"{self.path}: {detail}") from exc
         except StoreError:
             self._db.close()
             raise

@@ -26,7 +26,9 @@ SOCKETCAN = vcan_status("vcan0")
 UNKNOWN_OPTION = (("--no-such-option",), "error:")
 """Every subcommand gets this case too."""
 
-# subcommand -> [(its arguments, a phrase the one-line answer must contain)]; {tmp}: an empty directory
+# subcommand -> [(its arguments, a phrase the one-line answer must contain)]; {tmp}: a directory
+# that holds only {given}: a bracing store of robot r (bracing.db), an empty file (empty.db) and a
+# text file (file), which every refusal must leave byte for byte as they were
 BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
     "bus-load": [(("--rate", "0"), "must be positive"), (("--bitrate", "fast"), "not an integer")],
     "bus": [(("--port", "99999"), "not a TCP port")],
@@ -47,6 +49,12 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "r", "--resume", "20260101T000000-abcdef", *Z, "--db", "{tmp}/d.db"), "no store"),
         (("--robot", "r", *Z, "--db", "{tmp}"), "is a directory"),
         (("--robot", "r", "--zenoh", "nonsense", "--db", "{tmp}/d.db"), "invalid zenoh endpoints"),
+        (("--robot", "r", "--task", "lifting", *Z, "--db", "{given}/bracing.db"), "a store of bracing on r"),
+        (("--robot", "r2", *Z, "--db", "{given}/bracing.db"), "not of bracing on r2"),
+        (("--robot", "r", "--resume", "20260101T000000-abcdef", *Z, "--db", "{given}/bracing.db"), "no run"),
+        (("--robot", "r", "--kappa", "2", *Z, "--db", "{given}/bracing.db"), "was started with kappa"),
+        (("--robot", "r", *Z, "--db", "{given}/empty.db"), "not an ersac-hil store (an empty file)"),
+        (("--robot", "r", *Z, "--db", "{given}/file"), "not an ersac-hil store"),
     ],
     "state": [(("--timeout", "0", *Z), "must be positive")],
     "kappa": [(("set", "nan", *Z), "finite"), (("set", *Z), "needs a VALUE")],
@@ -54,8 +62,11 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
     "critic": [(("--grid", "0", *Z), "grid"), (Z, "--theta")],
     "select": [(("--kappa", "1e9", *Z), "above the maximum")],
     "report": [(("latest", "--db", "{tmp}/none.db", "--out", "{tmp}/report"), "no store"),
-               (("latest", "--out", "/proc/report"), "cannot write")],
+               (("latest", "--out", "/proc/report"), "cannot write"),
+               (("20260101T000000-abcdef", "--db", "{given}/bracing.db", "--out", "{tmp}/report"), "no run"),
+               (("latest", "--db", "{given}/empty.db", "--out", "{tmp}/report"), "not an ersac-hil store")],
     "certs init": [(("{tmp}/certs", "--days", "0"), "days must be in"),
+                   (("{given}/file",), "not a directory"),
                    (("{tmp}/certs", "--router", "nonsense"), "is not of the form")],
     "reproduce": [(("bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
                   (("juggling", "--out", "{tmp}/results"), "invalid choice"),
@@ -137,22 +148,57 @@ def _run_sim(argv: list[str]) -> tuple[int | None, str]:
     return proc.returncode, proc.stderr
 
 
+def _given(directory: Path) -> Path:
+    """The files the cases refer to as {given}: a closed bracing store of robot r with one
+    running run (kappa 0), an empty file, a text file."""
+    from ersac_hil.daemon.config import DaemonConfig
+    from ersac_hil.daemon.runs import open_run
+    from ersac_hil.daemon.store import Store
+    directory.mkdir()
+    with Store(directory / "bracing.db") as store:
+        open_run(store, DaemonConfig(robot="r", task="bracing", seed=1, db=directory / "bracing.db"))
+    (directory / "empty.db").touch()
+    (directory / "file").write_text("not a store\n")
+    return directory
+
+
+def _tree(root: Path) -> dict[str, bytes | None]:
+    """Every path under ``root`` with its bytes (``None``: a directory)."""
+    return {str(p.relative_to(root)): None if p.is_dir() else p.read_bytes() for p in sorted(root.rglob("*"))}
+
+
 @pytest.mark.parametrize("command", COMMANDS)
 def test_bad_input_is_one_line_and_exit_2(command, tmp_path, capsys):
     cases = BAD_INPUT.get(command, [])
     assert cases, f"no bad-input case for {command!r}: add its cases to BAD_INPUT"
+    given = _given(tmp_path / "given")
+    before = _tree(tmp_path)
     children = _children()
     wrong = []
     for args, needle in [*cases, UNKNOWN_OPTION]:
-        argv = [*command.split(), *(a.replace("{tmp}", str(tmp_path)) for a in args)]
+        argv = [*command.split(), *(a.replace("{given}", str(given)).replace("{tmp}", str(tmp_path)) for a in args)]
         code, err = _run_sim(argv) if command == "sim" else _run_in_process(argv, capsys)
         problem = _check(code, err, needle)
         if problem:
             wrong.append(f"ersac-hil {' '.join(argv)}: {problem}")
-        if list(tmp_path.iterdir()):
-            wrong.append(f"ersac-hil {' '.join(argv)} wrote {sorted(p.name for p in tmp_path.iterdir())}")
+        after = _tree(tmp_path)
+        if after != before:
+            changed = sorted(k for k in after.keys() | before.keys() if after.get(k, 0) != before.get(k, 0))
+            wrong.append(f"ersac-hil {' '.join(argv)} wrote or changed {changed}")
         assert _children() <= children, f"ersac-hil {' '.join(argv)} left a child process"
     assert not wrong, "\n".join(wrong)
+
+
+def test_a_daemon_without_a_session_writes_nothing(tmp_path, capsys):
+    """No router: the daemon fails to open its session (exit 1, one line) before it creates the
+    store, its directories or a run - nor does it touch a store that is there."""
+    given = _given(tmp_path / "given")
+    before = _tree(tmp_path)
+    for db in (tmp_path / "no" / "such" / "dir" / "x.db", given / "bracing.db"):
+        code, err = _run_in_process(["daemon", "--robot", "r", *Z, "--db", str(db)], capsys)
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert code == 1 and len(lines) == 1 and "zenoh session" in lines[0], err
+        assert _tree(tmp_path) == before
 
 
 def test_version():
