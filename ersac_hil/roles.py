@@ -49,7 +49,7 @@ from collections.abc import Sequence
 from typing import Any
 
 __all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "ROBOT_ROLES", "identities",
-           "parse_identity", "access_control"]
+           "parse_identity", "access_control", "permitted"]
 
 #: Every role; the certificate common name of a role is its name.
 ROLES: tuple[str, ...] = ("router", "daemon", "agent", "operator", "observer", "simulator")
@@ -202,3 +202,12 @@ def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str
         "subjects": [{"id": name, "cert_common_names": [name]} for name, _, _ in identities(robots)],
         "policies": policies,
     }
+
+
+# --------------------------------------------------------------------------- what a role may send
+def permitted(role: str, message: str, suffix: str) -> bool:
+    """May ``role`` send ``message`` (a Zenoh message kind: ``put``, ``query``...) on the key
+    ``<prefix>/<robot>/<suffix>``? The ingress rules of :data:`PERMISSIONS`, so a client can
+    refuse at once what the router would drop (``role`` as :func:`parse_identity` gives it)."""
+    return any(message in messages and suffix in suffixes
+               for messages, suffixes in PERMISSIONS.get(role, {}).get("ingress", ()))

@@ -113,17 +113,26 @@ def _router(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- clients
-def _client_call(args: argparse.Namespace, action, render=None) -> int:  # noqa: ANN001
+def _client_call(args: argparse.Namespace, action, render=None, needs: str = "state") -> int:  # noqa: ANN001
     """Run ``action(client)``; print ``render(reply)`` (default: human text, or the reply's
-    JSON with ``--json``). Maps failures to exit codes 1 (refused / no answer) and 2."""
+    JSON with ``--json``). Maps failures to exit codes 1 (refused / no answer) and 2 (also:
+    the identity's role may not do ``needs``, a key of ``clients.ACTIONS``: said before any
+    session is opened)."""
     from protocol.zenoh import KeySpace, PayloadError
     from ersac_hil.zenoh_session import ZenohConfigError, ZenohSessionError, zenoh_options
 
-    from .clients import ClientError, LearnerClient, RequestRefused
+    from .clients import ClientError, LearnerClient, NotPermitted, RequestRefused, check_permitted, identity_role
 
     try:
         keys = KeySpace(args.robot, args.prefix)
-        with LearnerClient(keys, zenoh_options(args), args.timeout) as client:
+        options = zenoh_options(args)
+        check_permitted(identity_role(options), needs)
+    except NotPermitted as exc:
+        return _fail(str(exc))
+    except (ZenohConfigError, ValueError) as exc:
+        return _fail(str(exc))
+    try:
+        with LearnerClient(keys, options, args.timeout) as client:
             reply = action(client)
     except (PayloadError, ZenohConfigError, ValueError) as exc:
         return _fail(str(exc))
@@ -185,7 +194,7 @@ def _check_kappa(args: argparse.Namespace) -> None:
 def _kappa(args: argparse.Namespace) -> int:
     if args.action == "get":
         return _client_call(args, lambda c: c.state(), lambda s: f"{s.kappa:g}")
-    return _client_call(args, lambda c: c.set_kappa(args.value))
+    return _client_call(args, lambda c: c.set_kappa(args.value), needs="kappa")
 
 
 def _check_weights(args: argparse.Namespace) -> None:
@@ -205,7 +214,7 @@ def _check_weights(args: argparse.Namespace) -> None:
 def _weights(args: argparse.Namespace) -> int:
     if args.action == "get":
         return _client_call(args, lambda c: c.state(), lambda s: json.dumps(dict(s.weights)))
-    return _client_call(args, lambda c: c.set_weights(dict(args.weight)))
+    return _client_call(args, lambda c: c.set_weights(dict(args.weight)), needs="weights")
 
 
 def _check_critic(args: argparse.Namespace) -> None:
@@ -216,7 +225,7 @@ def _check_critic(args: argparse.Namespace) -> None:
 
 
 def _critic(args: argparse.Namespace) -> int:
-    return _client_call(args, lambda c: c.critic(args.query))
+    return _client_call(args, lambda c: c.critic(args.query), needs="critic")
 
 
 def _check_select(args: argparse.Namespace) -> None:
@@ -226,7 +235,7 @@ def _check_select(args: argparse.Namespace) -> None:
 
 
 def _select(args: argparse.Namespace) -> int:
-    return _client_call(args, lambda c: c.select(args.query))
+    return _client_call(args, lambda c: c.select(args.query), needs="select")
 
 
 # --------------------------------------------------------------------------- report

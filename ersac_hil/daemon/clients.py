@@ -4,6 +4,13 @@ Each client is a Zenoh *client* session connected to explicit loopback endpoints
 return the typed reply or raise :class:`RequestRefused` (the learner's ``ErrorReply``) /
 :class:`NoAnswer`. Puts (kappa, weights) are confirmed by polling ``learner/state`` until the
 new value shows, while listening on ``learner/error`` for a refusal.
+
+A client knows the role of the identity it runs as (the common name of the certificate of its
+``--zenoh-config``, ``ersac_hil.certs.role_of_config``) and refuses at once what that role may
+not do (:class:`NotPermitted`, "observer may not set kappa": ``ersac_hil.roles.permitted``,
+the router's own rules). A query the router drops anyway ends at once without a reply, like
+one nobody serves: when ``learner/state`` answers, the client says "not permitted" rather
+than "no answer".
 """
 from __future__ import annotations
 
@@ -15,6 +22,8 @@ from typing import TypeVar
 
 import zenoh
 
+from ersac_hil.certs import CertError, role_of_config
+from ersac_hil.roles import parse_identity, permitted
 from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.zenoh import (
     CriticQuery,
@@ -33,9 +42,21 @@ from protocol.zenoh import (
 
 from .replies import MalformedReply, ReplyRefused, ReplyTimeout, decode_reply
 
-__all__ = ["ClientError", "RequestRefused", "NoAnswer", "LearnerClient"]
+__all__ = ["ClientError", "RequestRefused", "NoAnswer", "NotPermitted", "LearnerClient", "ACTIONS",
+           "identity_role", "check_permitted"]
 
 _M = TypeVar("_M", bound=Message)
+
+#: What a client does -> (the Zenoh message it sends, its key under <prefix>/<robot>/, how a
+#: refusal names it).
+ACTIONS: dict[str, tuple[str, str, str]] = {
+    "state": ("query", "learner/state", "read the learner's state"),
+    "critic": ("query", "learner/critic", "query the critic"),
+    "select": ("query", "learner/select", "select a policy"),
+    "episodes": ("query", "learner/episodes", "read the run's history"),
+    "kappa": ("put", "learner/kappa", "set kappa"),
+    "weights": ("put", "learner/weights", "set the weights"),
+}
 
 
 class ClientError(RuntimeError):
@@ -54,6 +75,32 @@ class NoAnswer(ClientError):
     """No learner answered in time (not running, wrong robot name or endpoint)."""
 
 
+class NotPermitted(ClientError):
+    """The identity the client runs as may not do this: its role says so (refused before
+    anything is sent), or the router dropped the request."""
+
+
+def identity_role(options: ZenohOptions) -> str | None:
+    """The role of the identity ``options`` connect as (``None``: no certificate, a name that
+    is no ersac-hil identity, or a config that cannot be read - opening the session says why)."""
+    if not options.config_file:
+        return None
+    try:
+        name = role_of_config(options.config_file)
+        return None if name is None else parse_identity(name)[0]
+    except (CertError, ValueError):
+        return None
+
+
+def check_permitted(role: str | None, action: str) -> None:
+    """Raise :class:`NotPermitted` ("observer may not set kappa") if ``role`` may not do
+    ``action`` (a key of :data:`ACTIONS`); an unknown role (``None``) is not checked."""
+    message, suffix, what = ACTIONS[action]
+    if role is not None and not permitted(role, message, suffix):
+        raise NotPermitted(f"{role} may not {what} (its certificate's role; the router would drop "
+                           f"the {message} on {suffix})")
+
+
 class LearnerClient:
     """A control-plane client for one robot.
 
@@ -62,13 +109,17 @@ class LearnerClient:
         endpoints: Zenoh endpoints to connect to, or the command line's ``ZenohOptions``
             (endpoints, json5 config file with the certificates of a role, insecure).
         timeout_s: per-request timeout.
+        check_role: refuse at once what the identity's role may not do (``role``: the role,
+            ``None`` when unknown); off, such a request goes out and the router drops it.
     """
 
     def __init__(self, keys: KeySpace, endpoints: Sequence[str] | ZenohOptions,
-                 timeout_s: float = 10.0) -> None:
+                 timeout_s: float = 10.0, check_role: bool = True) -> None:
         self.keys = keys
         self.timeout_s = timeout_s
         options = endpoints if isinstance(endpoints, ZenohOptions) else ZenohOptions(tuple(endpoints))
+        self.role = identity_role(options)
+        self._check_role = check_role
         self._session = open_session(resolve_config(options), insecure=options.insecure)
 
     def close(self) -> None:
@@ -94,25 +145,47 @@ class LearnerClient:
             except MalformedReply as exc:
                 raise ClientError(f"bad reply from {key}: {exc}") from None
 
+    def _may(self, action: str) -> None:
+        if self._check_role:
+            check_permitted(self.role, action)
+
     def _get(self, key: str, parameters: str, cls: type[_M], timeout_s: float | None = None) -> _M:
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        started = time.monotonic()
         for message in self._replies(key, parameters, cls, timeout):
             return message
+        if time.monotonic() - started < timeout / 2:  # ended at once: nothing serves it, or dropped
+            if key != self.keys.learner_state and self._learner_answers(timeout):
+                raise NotPermitted(f"not permitted: the router dropped the query on {key} (the learner "
+                                   f"answers {self.keys.learner_state}; this identity may not ask it)")
+            raise NoAnswer(f"no learner answered on {key} (nothing serves it: is the daemon running "
+                           "for this robot and endpoint?)")
         raise NoAnswer(f"no learner answered on {key} within {timeout:g} s "
                        "(is the daemon running for this robot and endpoint?)")
 
+    def _learner_answers(self, timeout: float) -> bool:
+        try:
+            self._get(self.keys.learner_state, "", LearnerState, timeout)
+        except ClientError:
+            return False
+        return True
+
     def state(self, timeout_s: float | None = None) -> LearnerState:
+        self._may("state")
         return self._get(self.keys.learner_state, "", LearnerState, timeout_s)
 
     def critic(self, query: CriticQuery) -> CriticReply:
+        self._may("critic")
         return self._get(self.keys.learner_critic, query.to_parameters(), CriticReply)
 
     def select(self, query: SelectQuery) -> SelectReply:
+        self._may("select")
         return self._get(self.keys.learner_select, query.to_parameters(), SelectReply)
 
     def episodes(self) -> list[LearnerEpisode]:
         """The run's history: every episode the learner recorded so far, in recording order
         (``[]`` also when no learner answers: ask :meth:`state` to tell the two apart)."""
+        self._may("episodes")
         # every reply has the same key: Zenoh's default consolidation would keep the last only
         return list(self._replies(self.keys.learner_episodes, "", LearnerEpisode, self.timeout_s,
                                   zenoh.ConsolidationMode.NONE))
@@ -124,6 +197,7 @@ class LearnerClient:
         self._session.put(key, payload)
 
     def _put_confirmed(self, kind: str, payload: bytes, done) -> LearnerState:  # noqa: ANN001
+        self._may(kind)
         errors: queue.Queue[ErrorReply] = queue.Queue()
 
         def on_error(sample: zenoh.Sample) -> None:
@@ -147,7 +221,8 @@ class LearnerClient:
                 state = self.state()
                 if done(state):
                     return state
-            raise NoAnswer(f"learner/{kind} not applied within {self.timeout_s:g} s")
+            raise NoAnswer(f"learner/{kind} not applied within {self.timeout_s:g} s although the learner "
+                           "answers (a put this identity may not make is dropped by the router unseen)")
         finally:
             subscriber.undeclare()
 

@@ -32,7 +32,7 @@ from protocol.zenoh import (
 )
 from protocol.zenoh.codec import loads
 
-from ersac_hil.daemon.clients import ClientError, NoAnswer, RequestRefused
+from ersac_hil.daemon.clients import ClientError, NoAnswer, NotPermitted, RequestRefused
 
 __all__ = ["ApiError", "parse_body", "kappa_command", "weights_command", "select_query",
            "error_from_exception", "FORBIDDEN"]
@@ -108,6 +108,8 @@ def error_from_exception(exc: Exception) -> ApiError:
         error: ErrorReply = exc.error
         status = {"invalid_request": 400, "unavailable": 409, "busy": 503}.get(error.code, 502)
         return ApiError(status, error.code, error.reason)
+    if isinstance(exc, NotPermitted):
+        return ApiError(403, "not_permitted", str(exc))
     if isinstance(exc, NoAnswer):
         return ApiError(504, "timeout", str(exc))
     if isinstance(exc, ClientError):

@@ -18,7 +18,7 @@ import pytest
 import zenoh
 
 from ersac_hil.certs import init_certs
-from ersac_hil.daemon.clients import LearnerClient, NoAnswer
+from ersac_hil.daemon.clients import LearnerClient, NotPermitted
 from ersac_hil.daemon.store import Store
 from ersac_hil.demo import DemoConfig, run_demo
 from ersac_hil.zenoh_session import (
@@ -163,8 +163,14 @@ def test_observer_reads_but_cannot_steer_and_operator_sets_kappa(stack):
         for reader in (observer, operator):  # the run's history, as a late dashboard asks for it
             assert [e.result.episode_id for e in reader.episodes()] == answered
         observer.put_raw("kappa", KappaCommand(7.5).to_json())  # dropped by the router
-        with pytest.raises(NoAnswer):
+        with pytest.raises(NotPermitted, match="observer may not select a policy"):  # its role, at once
             observer.select(SelectQuery(kappa=1.0, adopt=True))
+        with pytest.raises(NotPermitted, match="observer may not set kappa"):
+            observer.set_kappa(7.5)
+        unchecked = LearnerClient(KeySpace(stack.info["robot"]), stack.options("observer"), 10.0, check_role=False)
+        with unchecked:  # sent anyway: the router drops it, and the client says so, not "no answer"
+            with pytest.raises(NotPermitted, match="not permitted: the router dropped the query"):
+                unchecked.select(SelectQuery(kappa=1.0))
         after = operator.set_kappa(-1.25)  # the operator's put arrives and is applied
         assert after.kappa == -1.25 and observer.state().kappa == -1.25
     with Store(stack.info["db"], readonly=True) as store:

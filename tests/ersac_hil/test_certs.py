@@ -107,3 +107,43 @@ def test_cli_refuses_an_existing_set_and_plain_endpoints(certs, tmp_path, capsys
     assert role_of_config(tmp_path / "y" / "observer.json5") == "observer"
     with pytest.raises(CertError, match="days"):
         init_certs(tmp_path / "z", days=0)
+
+
+def test_permitted_is_the_routers_own_ingress_rules():
+    from ersac_hil.roles import PERMISSIONS, permitted
+    rules = {r["id"]: r for r in access_control()["rules"]}
+    policies = {p["subjects"][0]: [rules[i] for i in p["rules"]] for p in access_control()["policies"]}
+    kinds = {m for grants in PERMISSIONS.values() for flow in grants.values() for ms, _ in flow for m in ms}
+    suffixes = {s for grants in PERMISSIONS.values() for flow in grants.values() for _, ss in flow for s in ss}
+    for role in ROLES:
+        for message in kinds:
+            for suffix in suffixes:
+                allowed = any("ingress" in r["flows"] and message in r["messages"]
+                              and f"ersac/*/{suffix}" in r["key_exprs"] for r in policies.get(role, []))
+                assert permitted(role, message, suffix) == allowed, (role, message, suffix)
+
+
+@pytest.mark.parametrize("argv, refusal", [
+    (("kappa", "set", "0.5"), "observer may not set kappa"),
+    (("weights", "set", "damage=5"), "observer may not set the weights"),
+    (("select", "--kappa", "1"), "observer may not select a policy"),
+])
+def test_an_observer_is_refused_by_its_role_before_any_session(certs, argv, refusal, capsys):
+    """Nothing listens at the configs' router (tls/127.0.0.2:7447): a command that opened a
+    session would fail with exit 1 ("cannot open a zenoh session"); the role refuses first."""
+    code = main([*argv, "--zenoh-config", str(certs / "observer.json5")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and refusal in err[0], err
+
+
+def test_the_client_knows_its_role(certs, tmp_path):
+    from ersac_hil.daemon.clients import NotPermitted, check_permitted, identity_role
+    assert identity_role(ZenohOptions(config_file=str(certs / "observer.json5"))) == "observer"
+    assert identity_role(ZenohOptions(config_file=str(certs / "operator.json5"))) == "operator"
+    assert identity_role(ZenohOptions(("tcp/127.0.0.1:7447",))) is None  # no certificate: not checked
+    check_permitted(None, "kappa")
+    for action in ("state", "critic", "select", "episodes", "kappa", "weights"):
+        check_permitted("operator", action)
+    check_permitted("observer", "critic")
+    with pytest.raises(NotPermitted, match="daemon may not set kappa"):
+        check_permitted("daemon", "kappa")
