@@ -41,11 +41,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--snapshot", metavar="PNG", help="render one frame headlessly and exit")
     p.add_argument("--scenario", default="bracing", help="scenario of --snapshot")
     p.add_argument("--at", type=float, default=0.0, help="--snapshot: simulated seconds before the frame")
+    p.add_argument("--physics", metavar="FILE", help="TOML of named physical overrides (docs/physics.md)")
+    p.add_argument("--physics-names", action="store_true", help="list the overridable quantities and exit")
     p.add_argument("-v", "--verbose", action="count", default=0)
     return p
 
 
-def snapshot(path: str, scenario: str, seed: int, at: float) -> None:
+def snapshot(path: str, scenario: str, seed: int, at: float, physics=None) -> None:  # noqa: ANN001
     """Render the scenario's state after ``at`` s (passive robot) to a PNG."""
     import mujoco
     import matplotlib
@@ -54,7 +56,7 @@ def snapshot(path: str, scenario: str, seed: int, at: float) -> None:
 
     from firmware_sim.simulator import Simulator
 
-    sim = Simulator()
+    sim = Simulator() if physics is None else Simulator(physics=physics)
     sim.reset(scenario, seed)
     for _ in range(int(round(at / sim.control_period))):
         sim.step()
@@ -82,6 +84,11 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
         parser.error(f"--substeps must be at least 1, got {args.substeps}")
     if args.seed < 0:
         parser.error(f"--seed must not be negative, got {args.seed}")
+    from firmware_sim.plant.overrides import PhysicsError, PhysicsOverrides
+    try:
+        args.physics = PhysicsOverrides() if args.physics is None else PhysicsOverrides.load(args.physics)
+    except PhysicsError as exc:
+        parser.error(f"--physics: {exc}")
     if args.snapshot:
         from firmware_sim.scenarios import SCENARIOS
         if args.scenario not in SCENARIOS:
@@ -103,12 +110,16 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.physics_names:
+        from firmware_sim.plant.overrides import names_table
+        print(names_table())
+        return 0
     config = _check(parser, args)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s sim %(levelname)s %(message)s")
     if args.snapshot:
         try:
-            snapshot(args.snapshot, args.scenario, args.seed, args.at)
+            snapshot(args.snapshot, args.scenario, args.seed, args.at, args.physics)
         except Exception as exc:  # no GL on this machine: say so plainly
             print(f"snapshot failed: {exc} (headless rendering needs MUJOCO_GL=egl with "
                   "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1, or osmesa with libosmesa6)",
@@ -126,12 +137,12 @@ def main(argv: list[str] | None = None) -> int:
         from protocol.can.realtime import request_realtime
         print(f"simulator: {request_realtime()}", flush=True)
     robot = SimulatedRobot(config, seed=args.seed, realtime=args.realtime,
-                           control_period=args.control_period, substeps=args.substeps)
+                           control_period=args.control_period, substeps=args.substeps, physics=args.physics)
     from protocol.can.realtime import quiet_gc
     quiet_gc()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"simulator: {len(robot.nodes)} nodes on {config.describe()}, {mode}, "
-          f"{1 / args.control_period:g} Hz", flush=True)
+          f"{1 / args.control_period:g} Hz, {args.physics.describe()}", flush=True)
     try:
         received = signal.sigwait(_SIGNALS)
     finally:

@@ -43,6 +43,7 @@ from .plant import (
     read_motor_params,
 )
 from .plant.damage import ELBOWS, SIDES
+from .plant.overrides import PhysicsOverrides
 from .scenarios import SCENARIOS, Scenario, make
 
 MAX_TIMESTEP = 0.001
@@ -133,8 +134,10 @@ class _Rig:
     """Everything compiled for one scenario; reused across resets of that scenario."""
 
     def __init__(self, scenario: Scenario, timestep: float, control_period: float,
-                 imu_noise: ImuNoise, cable: CableSpec) -> None:
+                 imu_noise: ImuNoise, cable: CableSpec, overrides: PhysicsOverrides) -> None:
         spec = scenario.build_spec()
+        overrides.apply_spec(spec)
+        overrides.apply_scenario(scenario)
         spec.option.timestep = timestep
         self.scenario = scenario
         self.physics = Physics.from_spec(spec)
@@ -158,11 +161,13 @@ class Simulator:
         balance_free: wheels passive (their drivers ignore torque commands), kept over resets.
         imu_noise: noise standard deviations of the IMU.
         cable: elbow cable constants (median breaking tension, strength scatter).
+        physics: named overrides of the plant (``plant.overrides``; its cable entries
+            replace those of ``cable``); empty: the model as it is.
     """
 
     def __init__(self, control_period: float = 0.005, substeps: int = 5, *,
                  balance_free: bool = False, imu_noise: ImuNoise = ImuNoise(),
-                 cable: CableSpec = CableSpec()) -> None:
+                 cable: CableSpec = CableSpec(), physics: PhysicsOverrides = PhysicsOverrides()) -> None:
         if not (control_period > 0 and substeps >= 1):
             raise ValueError("control_period must be > 0 and substeps >= 1")
         if control_period / substeps > MAX_TIMESTEP * (1 + 1e-9):
@@ -171,7 +176,8 @@ class Simulator:
         self.substeps = int(substeps)
         self.timestep = self.control_period / self.substeps
         self._imu_noise = imu_noise
-        self._cable = cable
+        self._overrides = physics
+        self._cable = physics.cable(cable)
         self._balance_free = bool(balance_free)
         self._rigs: dict[str, _Rig] = {}
         self._rig: _Rig | None = None
@@ -195,7 +201,7 @@ class Simulator:
         rig = self._rigs.get(scenario)
         if rig is None:
             rig = _Rig(make(scenario), self.timestep, self.control_period, self._imu_noise,
-                       self._cable)
+                       self._cable, self._overrides)
             self._rigs[scenario] = rig
         self._rig, self._seed = rig, int(seed)
         # streams: scenario, IMU noise, cable strengths, load (spawn(4)[:3] == spawn(3): adding

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from firmware_sim.nodes.base import SlaveNode
 from firmware_sim.nodes.devices import APPS, AxisCounts, telemetry_row
 from firmware_sim.nodes.sampler import TpdoSampler
+from firmware_sim.plant.overrides import PhysicsOverrides
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, Device
@@ -46,12 +47,12 @@ class SimulatedRobot:
 
     def __init__(self, bus_config: BusConfig, *, seed: int = 0, realtime: bool = False,
                  control_period: float = 0.005, substeps: int = 5,
-                 devices: tuple[Device, ...] = DEVICES) -> None:
+                 devices: tuple[Device, ...] = DEVICES, physics: PhysicsOverrides = PhysicsOverrides()) -> None:
         self.devices = devices
         self.realtime = realtime
         self.lock = threading.RLock()
         self.stats = RobotStats()
-        self.sim = Simulator(control_period, substeps)
+        self.sim = Simulator(control_period, substeps, physics=physics)
         self.sim.reset("idle", seed)
         self.network = open_network(bus_config)
         self.nodes: dict[str, SlaveNode] = {}
