@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from ersac_hil.dashboard.browser import headless_chromium, missing  # noqa: E402
-from ersac_hil.demo import Child  # noqa: E402
+from ersac_hil.stack import Child  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
 from protocol.zenoh import EpisodeDone, KeySpace, LearnerEpisode  # noqa: E402
 

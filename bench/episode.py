@@ -20,7 +20,7 @@ it. Backends:
 
 On ``zenoh`` and ``direct`` both buses busy-poll in lock-step as ``ersac-hil demo``'s do
 (``--busy-poll S``, default the demo's for one pair on this machine,
-``ersac_hil.demo.busy_poll_for``; 0 = off); not in real time by default (a sample every 5 ms
+``ersac_hil.stack.busy_poll_for``; 0 = off); not in real time by default (a sample every 5 ms
 outlasts the window: nothing gained, docs/performance.md).
 
 No pass/fail: figures only. OPENBLAS_NUM_THREADS=1 (2-core machine).
@@ -51,7 +51,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
-from ersac_hil.demo import busy_poll_for  # noqa: E402
+from ersac_hil.stack import busy_poll_for  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter, free_tcp_port  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import EpisodeRequest, EpisodeResult, ErrorReply, KeySpace  # noqa: E402

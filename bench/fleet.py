@@ -10,7 +10,7 @@ daemon's dispatcher: each request to whichever agent is free). After one warm-up
 agent, the wall time from the first request to the last result gives episodes per second,
 the aggregate real-time factor (simulated seconds per wall second) and the speed-up over N = 1.
 ``--busy-poll`` gives the CAN buses' polling window(s) in seconds (``Stack(busy_poll=...)``;
-default ``auto``, the demo's choice for each N, ``ersac_hil.demo.busy_poll_for``; several,
+default ``auto``, the demo's choice for each N, ``ersac_hil.stack.busy_poll_for``; several,
 comma-separated, are compared). The sizes (and windows) are interleaved round by round (1,
 2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside
 every figure (a shared 2-core machine).
@@ -36,7 +36,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
-from ersac_hil.demo import Stack, busy_poll_for  # noqa: E402
+from ersac_hil.stack import Stack, busy_poll_for  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
 from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
 

@@ -49,7 +49,7 @@ thread that polls gets it without being woken, and its processor never idles in 
 a virtual machine an idle processor costs tens of microseconds to wake, on every hop). It
 costs a processor's time while frames flow, at most ``busy_poll`` after the last one: for
 simulated robots in lock-step where there is a core for each polling bus (``ersac-hil
-demo``, ``Stack`` and the benchmarks, ``ersac_hil.demo.busy_poll_for``), not for a robot's
+demo``, ``Stack`` and the benchmarks, ``ersac_hil.stack.busy_poll_for``), not for a robot's
 real-time bus (a frame every 5 ms outlasts the window). The delivery is the same:
 every frame, in order, to ``recv()`` or the push listeners, on one thread.
 

@@ -82,7 +82,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     option, default all; the others as ``out`` recorded them for each experiment where it did),
     analyse, write the results. Returns an exit code."""
     from ersac_hil.daemon.agents import Stopped
-    from ersac_hil.demo import ChildFailed, Stack
+    from ersac_hil.stack import ChildFailed, Stack
 
     from . import bracing, contexts, lifting, results
     from .planfile import INTERLEAVE, SIZE_FIELDS, PlanConflict

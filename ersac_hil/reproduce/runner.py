@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ersac_hil.daemon.agents import AgentLink, Stopped
 from ersac_hil.daemon.store import RunRecord, Store
-from ersac_hil.demo import ChildFailed, Pair, Stack, cli_argv
+from ersac_hil.stack import ChildFailed, Pair, Stack, cli_argv
 from ersac_hil.zenoh_session import make_config, open_session
 from protocol.zenoh import KeySpace
 

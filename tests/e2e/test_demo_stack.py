@@ -136,7 +136,7 @@ def test_each_can_bus_gets_one_bus_kwargs_flag_with_its_identity_and_polling(tmp
     ``--bus-kwargs`` (a second flag would replace the first), parsed as keyword arguments."""
     import threading
 
-    from ersac_hil.demo import Stack
+    from ersac_hil.stack import Stack
     from protocol.can.busconfig import parse_bus_kwargs
     stack = Stack(tmp_path / "logs", threading.Event(), busy_poll=busy_poll)  # explicit: any core count
     stack.roles = {"agent": "agent.json5", "simulator": "simulator.json5"}
@@ -154,5 +154,5 @@ def test_each_can_bus_gets_one_bus_kwargs_flag_with_its_identity_and_polling(tmp
 @pytest.mark.parametrize("pairs, cores, expected", [(1, 2, 0.002), (2, 2, 0.0), (2, 4, 0.002), (3, 4, 0.0),
                                                     (1, 1, 0.0)])
 def test_pairs_poll_by_default_only_with_a_core_for_each_polling_bus(pairs, cores, expected):
-    from ersac_hil.demo import BUSY_POLL_S, busy_poll_for
+    from ersac_hil.stack import BUSY_POLL_S, busy_poll_for
     assert busy_poll_for(pairs, cores) == (BUSY_POLL_S if expected else 0.0)

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from ersac_hil.dashboard.browser import console_errors, headless_chromium, missing
-from ersac_hil.demo import Child
+from ersac_hil.stack import Child
 from helpers.waiting import wait_until
 from helpers.webclient import http
 
