@@ -33,8 +33,8 @@ from ersac_hil.zenoh_session import (
     open_session,
     resolve_config,
     session_scope,
-    wait_for_match,
 )
+from helpers.waiting import wait_for_match
 from protocol.zenoh import (
     CriticPoint,
     CriticQuery,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import pytest
 
@@ -27,6 +27,22 @@ def wait_until(predicate: Callable[[], T], timeout_s: float = DEFAULT_TIMEOUT_S,
             return value
         if time.monotonic() > deadline:
             pytest.fail(f"{what} not met within {timeout_s} s")
+        time.sleep(poll_s)
+
+
+def wait_for_match(entity: Any, timeout_s: float = 5.0, poll_s: float = 0.002) -> bool:
+    """Wait until a :class:`zenoh.Publisher` or :class:`zenoh.Querier` has a matching
+    subscriber/queryable (declarations propagate asynchronously through the router).
+
+    Returns:
+        whether a match appeared within ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if entity.matching_status.matching:
+            return True
+        if time.monotonic() >= deadline:
+            return False
         time.sleep(poll_s)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from ersac_hil.daemon.replies import MalformedReply, ReplyRefused, ReplyTimeout, decode_reply
-from ersac_hil.zenoh_session import wait_for_match
+from helpers.waiting import wait_for_match
 from protocol.zenoh import ErrorReply, KappaCommand
 
 KEY = "ersac/replies/test"
