@@ -5,16 +5,18 @@ Frame length with worst-case bit stuffing (Davis, Burns, Bril & Lukkien 2007, eq
 empty frame (SYNC) and 135 bits for 8 bytes. The schedule per SYNC period is SYNC itself,
 every synchronous PDO (a PDO with transmission type N counts 1/N per period) and the
 heartbeats of every node and the agent, amortised over the period. EMCY and SDO traffic is
-acyclic and not in the budget: the 50 % ceiling leaves the rest for it.
+acyclic and not in the budget: the ceiling (50 % unless the robot description says otherwise)
+leaves the rest for it. Rate, bit rate, heartbeat period and nodes are the description's.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device
 from protocol.can.pdo import PdoSpec, cyclic_pdos
+from protocol.robot import Device, RobotDescription, default_description
 
-BUDGET_PERCENT = 50.0
+BUDGET_PERCENT = default_description().bus.load_budget_percent
+"""The default robot's budget: the cyclic schedule within half the bus."""
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -40,6 +42,7 @@ class BusLoad:
     rate_hz: float
     bitrate: int
     items: tuple[LoadItem, ...]
+    budget_percent: float = BUDGET_PERCENT
 
     @property
     def bits_per_cycle(self) -> float:
@@ -51,7 +54,24 @@ class BusLoad:
 
     @property
     def within_budget(self) -> bool:
-        return self.percent <= BUDGET_PERCENT
+        return self.percent <= self.budget_percent
+
+    @property
+    def fits(self) -> bool:
+        """The schedule fits on the bus at all (at most 100 %)."""
+        return self.percent <= 100.0
+
+    @property
+    def min_bitrate(self) -> float:
+        """The lowest bit rate [bit/s] that carries this schedule at 100 %."""
+        return self.bits_per_cycle * self.rate_hz
+
+    @property
+    def max_rate_hz(self) -> float:
+        """The highest SYNC rate [Hz] this bit rate carries at 100 % (heartbeats held fixed)."""
+        per_second = sum(i.bits_per_cycle * self.rate_hz for i in self.items if i.name.startswith("heartbeat"))
+        per_cycle = sum(i.bits_per_cycle for i in self.items if not i.name.startswith("heartbeat"))
+        return max(self.bitrate - per_second, 0.0) / per_cycle
 
 
 def _pdo_item(p: PdoSpec) -> LoadItem:
@@ -59,16 +79,23 @@ def _pdo_item(p: PdoSpec) -> LoadItem:
                     p.length, 1.0 / p.transmission_type)
 
 
-def bus_load(rate_hz: float = 200.0, bitrate: int = 1_000_000,
-             devices: tuple[Device, ...] = DEVICES) -> BusLoad:
+def bus_load(rate_hz: float | None = None, bitrate: int | None = None,
+             devices: tuple[Device, ...] | None = None, *,
+             description: RobotDescription | None = None) -> BusLoad:
+    """The schedule's load: of ``description`` (default: the default robot) with its SYNC rate,
+    bit rate and nodes unless ``rate_hz``/``bitrate``/``devices`` say otherwise."""
+    description = description or default_description()
+    rate_hz = description.bus.rate_hz if rate_hz is None else rate_hz
+    bitrate = description.bus.bitrate if bitrate is None else bitrate
+    devices = description.devices if devices is None else devices
     if not rate_hz > 0 or bitrate <= 0:
         raise ValueError("rate and bitrate must be positive")
     items = [LoadItem("SYNC (0x080)", 0, 1.0)]
     items += [_pdo_item(p) for p in cyclic_pdos(devices)]
-    hb_per_cycle = 1000.0 / HEARTBEAT_PERIOD_MS / rate_hz
+    hb_per_cycle = 1000.0 / description.bus.heartbeat_period_ms / rate_hz
     items.append(LoadItem("heartbeat agent", 1, hb_per_cycle))
     items += [LoadItem(f"heartbeat {d.name}", 1, hb_per_cycle) for d in devices]
-    return BusLoad(rate_hz, bitrate, tuple(items))
+    return BusLoad(rate_hz, bitrate, tuple(items), description.bus.load_budget_percent)
 
 
 def format_report(load: BusLoad) -> str:
@@ -78,5 +105,6 @@ def format_report(load: BusLoad) -> str:
                      f"{item.bits_per_cycle:>10.1f}")
     lines.append(f"{'total':<40} {'':>5} {sum(i.per_cycle for i in load.items):>9.3f} "
                  f"{load.bits_per_cycle:>10.1f}")
+    lines.append(f"budget: {load.budget_percent:g}% ({'within' if load.within_budget else 'over'})")
     lines.append(f"bus load: {load.percent:.1f}% at {load.bitrate} bit/s, {load.rate_hz:g} Hz")
     return "\n".join(lines)

@@ -1,81 +1,47 @@
-"""The uBot-5's CANopen devices and the simulator's test bench: which exist, their node-ids,
-and their EDS files.
+"""The default robot's CANopen devices (the uBot-5 on its boards, and the simulator's test
+bench): which exist, their node-ids, and their EDS files - as its robot description
+(protocol/robots/ubot5.toml, read by ``protocol.robot``) gives them.
 
-``DEVICES`` is the single table of node assignments. ``object_dictionary(device)`` loads the
-device's EDS with canopen (cached per device).
+``DEVICES`` is the default description's table of nodes; a program that serves another
+description takes ``description.devices`` instead. ``object_dictionary(device)`` loads the
+device's EDS with canopen (cached per EDS file and node-id).
 """
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
-
-import canopen
 from canopen.objectdictionary import ObjectDictionary
 
-AGENT_NODE_ID = 0x01
+from protocol.robot import default_description
+from protocol.robot.eds import object_dictionary_file
+from protocol.robot.model import Device, eds_path
+
+__all__ = ["AGENT_NODE_ID", "ARM_LEFT", "ARM_RIGHT", "CONSUMER_HEARTBEAT_MS", "DEVICES",
+           "HEARTBEAT_PERIOD_MS", "IMU", "ROBOT", "TESTBENCH", "TORSO", "WHEELS", "Device",
+           "device", "eds_path", "object_dictionary"]
+
+_DEFAULT = default_description()
+
+AGENT_NODE_ID = _DEFAULT.bus.agent_node_id
 """The agent (NMT master, SYNC producer) produces its heartbeat under this node-id."""
 
-HEARTBEAT_PERIOD_MS = 100
+HEARTBEAT_PERIOD_MS = _DEFAULT.bus.heartbeat_period_ms
 """Producer heartbeat period of every node, and of the agent."""
 
-CONSUMER_HEARTBEAT_MS = 250
+CONSUMER_HEARTBEAT_MS = _DEFAULT.bus.consumer_heartbeat_ms
 """How long a controller tolerates silence from the agent before its safe state (0x1016)."""
 
-
-@dataclass(frozen=True)
-class Device:
-    """One CANopen node.
-
-    ``axes`` names the motor axes in sub-index order (sub-index 1 = ``axes[0]``).
-    ``joints`` are the robot-level names of those axes (what the simulator calls them).
-    ``simulated_only`` marks nodes that exist only on a simulated robot (the test bench).
-    """
-    name: str
-    node_id: int
-    eds: str
-    axes: tuple[str, ...] = ()
-    joints: tuple[str, ...] = ()
-    simulated_only: bool = False
-
-    @property
-    def eds_path(self) -> Path:
-        return eds_path(self.eds)
-
-
-WHEELS = Device("wheels", 0x10, "wheel.eds", ("left", "right"), ("wheel_left", "wheel_right"))
-TORSO = Device("torso", 0x11, "torso.eds", ("torso",), ("torso",))
-ARM_LEFT = Device("arm_left", 0x12, "arm.eds", ("shoulder", "elbow"), ("shoulder_left", "elbow_left"))
-ARM_RIGHT = Device("arm_right", 0x13, "arm.eds", ("shoulder", "elbow"), ("shoulder_right", "elbow_right"))
-IMU = Device("imu", 0x20, "imu.eds")
-TESTBENCH = Device("testbench", 0x7E, "testbench.eds", simulated_only=True)
-
-DEVICES: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT, IMU, TESTBENCH)
+DEVICES: tuple[Device, ...] = _DEFAULT.devices
 """Every node of a simulated uBot, in node-id order."""
 
-ROBOT: tuple[Device, ...] = tuple(d for d in DEVICES if not d.simulated_only)
+ROBOT: tuple[Device, ...] = _DEFAULT.robot_devices
 """The nodes a real robot has."""
+
+WHEELS, TORSO, ARM_LEFT, ARM_RIGHT, IMU, TESTBENCH = (
+    _DEFAULT.device(n) for n in ("wheels", "torso", "arm_left", "arm_right", "imu", "testbench"))
 
 
 def device(name_or_id: str | int) -> Device:
-    """Look a device up by name (``"arm_left"``) or node-id."""
-    for d in DEVICES:
-        if d.name == name_or_id or d.node_id == name_or_id:
-            return d
-    raise KeyError(f"no device {name_or_id!r} on the uBot; known: {[d.name for d in DEVICES]}")
-
-
-def eds_path(filename: str) -> Path:
-    path = Path(str(resources.files("protocol.can") / "eds" / filename))
-    if not path.is_file():
-        raise FileNotFoundError(f"EDS file {filename} is not in protocol/can/eds")
-    return path
-
-
-@functools.lru_cache(maxsize=None)
-def _od(filename: str, node_id: int) -> ObjectDictionary:
-    return canopen.import_od(str(eds_path(filename)), node_id)
+    """Look a device of the default robot up by name (``"arm_left"``) or node-id."""
+    return _DEFAULT.device(name_or_id)
 
 
 def object_dictionary(dev: Device) -> ObjectDictionary:
@@ -83,4 +49,4 @@ def object_dictionary(dev: Device) -> ObjectDictionary:
 
     Shared and cached: treat it as read-only (canopen nodes only read their OD).
     """
-    return _od(dev.eds, dev.node_id)
+    return object_dictionary_file(dev.eds, dev.node_id)

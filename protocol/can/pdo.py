@@ -15,7 +15,8 @@ from typing import Literal
 
 from canopen.objectdictionary import ODRecord, ODVariable
 
-from protocol.can.devices import DEVICES, Device, device, object_dictionary
+from protocol.can.devices import DEVICES, Device, object_dictionary
+from protocol.robot.eds import object_dictionary_file
 
 Direction = Literal["tpdo", "rpdo"]
 
@@ -32,7 +33,8 @@ class PdoEntry:
 class PdoSpec:
     """One PDO of one device. ``direction`` is seen from the device: a TPDO is transmitted by
     the device (telemetry), an RPDO received (commands). ``transmission_type`` 1..240 means
-    synchronous, sent/applied every ``transmission_type``-th SYNC."""
+    synchronous, sent/applied every ``transmission_type``-th SYNC. ``eds`` is the EDS file
+    the map was read from (``Device.eds``)."""
     device: str
     node_id: int
     direction: Direction
@@ -40,6 +42,7 @@ class PdoSpec:
     cob_id: int
     transmission_type: int
     entries: tuple[PdoEntry, ...]
+    eds: str = ""
 
     @property
     def length(self) -> int:
@@ -69,7 +72,7 @@ def pdo_struct(spec: PdoSpec) -> struct.Struct:
     Raises:
         ValueError: an entry that is not a whole byte-aligned integer of its object's size.
     """
-    od = object_dictionary(device(spec.device))
+    od = object_dictionary_file(spec.eds, spec.node_id)
     fmt = "<"
     for e in spec.entries:
         var = _object(od, e.index, e.subindex)
@@ -101,10 +104,11 @@ def pdo_maps(dev: Device) -> tuple[PdoSpec, ...]:
                 target = _object(od, index, subindex)
                 entries.append(PdoEntry(index, subindex, bits, target.name))
             specs.append(PdoSpec(dev.name, dev.node_id, direction, n + 1,
-                                 _value(comm[1]) & 0x7FF, _value(comm[2]), tuple(entries)))
+                                 _value(comm[1]) & 0x7FF, _value(comm[2]), tuple(entries), dev.eds))
     return tuple(specs)
 
 
 def cyclic_pdos(devices: tuple[Device, ...] = DEVICES) -> tuple[PdoSpec, ...]:
-    """Every synchronous PDO of the given devices (the 200 Hz schedule, without SYNC)."""
+    """Every synchronous PDO of the given devices (the schedule of one SYNC period, without
+    SYNC itself); a description's are ``cyclic_pdos(description.devices)``."""
     return tuple(p for d in devices for p in pdo_maps(d) if p.synchronous)
