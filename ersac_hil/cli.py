@@ -95,7 +95,8 @@ def _extensions():
     """Subcommands contributed by other modules of this package (agent, daemon, demo...)."""
     import importlib
     for name in ("ersac_hil.agent.cli", "ersac_hil.daemon.cli", "ersac_hil.demo", "ersac_hil.certs",
-                 "ersac_hil.reproduce.cli", "ersac_hil.dashboard.cli"):
+                 "ersac_hil.reproduce.cli", "ersac_hil.dashboard.cli",
+                 "ersac_hil.agent.operator"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:

@@ -9,18 +9,21 @@ certificate's common name:
 role       may
 =========  ===================================================================================
 router     listen (its certificate is the TLS server's); no rules of its own
-daemon     query ``episode/run``; see the agent's liveliness tokens; serve ``learner/state``,
+daemon     query ``episode/run`` and ``agent/state``; see the agent's liveliness tokens; serve ``learner/state``,
            ``learner/critic``, ``learner/select``, ``learner/episodes`` (history); receive
            ``learner/kappa`` and ``learner/weights`` puts; publish ``learner/episodes`` and
            ``learner/error``
 agent      serve ``episode/run`` (declare the queryable, reply); declare ``agent/alive`` and
            ``agent/session/<zid>``;
-           publish ``episode/done``; receive ``agent/go``
-operator   put ``learner/kappa``, ``learner/weights``, ``agent/go``; query ``learner/state``,
+           publish ``episode/done``; receive ``agent/go`` and ``agent/estop``; serve
+           ``agent/state``
+operator   put ``learner/kappa``, ``learner/weights``, ``agent/go``, ``agent/estop``; query
+           ``agent/state``, ``learner/state``,
            ``learner/critic``, ``learner/select`` (also with ``adopt=true``),
            ``learner/episodes``; read
            ``learner/episodes``, ``learner/error``, ``episode/done``, ``agent/alive``
-observer   query ``learner/state``, ``learner/critic`` and ``learner/episodes``; read
+observer   query ``learner/state``, ``learner/critic``, ``learner/episodes`` and
+           ``agent/state``; read
            ``learner/episodes``, ``learner/error``, ``episode/done``, ``agent/alive``; nothing else
 simulator  the CAN bus only: send and receive frames on ``can/**`` (the CAN-over-Zenoh
            channels, ``ersac_hil.canbus.zenoh_bus``), like the agent; nothing else
@@ -124,6 +127,17 @@ PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]]
         ],
     },
 }
+
+# -- safety: the e-stop (an operator's put only) and the agent's state (anyone who reads) ----
+_ESTOP, _AGENT_STATE = "agent/estop", "agent/state"
+PERMISSIONS["agent"]["ingress"] += [(("declare_subscriber",), (_ESTOP,)),
+                                    (("declare_queryable", "reply"), (_AGENT_STATE,))]
+PERMISSIONS["agent"]["egress"] += [(("put",), (_ESTOP,)), (("query",), (_AGENT_STATE,))]
+PERMISSIONS["operator"]["ingress"].append((("put",), (_ESTOP,)))
+PERMISSIONS["operator"]["egress"].append((("declare_subscriber",), (_ESTOP,)))
+for _role in ("daemon", "operator", "observer"):
+    PERMISSIONS[_role]["ingress"].append((("query",), (_AGENT_STATE,)))
+    PERMISSIONS[_role]["egress"].append((("declare_queryable", "reply"), (_AGENT_STATE,)))
 
 
 #: The CAN-over-Zenoh channels (``ersac_hil.canbus.zenoh_bus``: key ``can/<channel>``).

@@ -26,7 +26,13 @@ def register(subparsers) -> None:
                    help="write each episode's CAN traffic to DIR/<episode_id>.blf (or .asc)")
     p.add_argument("--record-format", dest="record_format", choices=("blf", "asc"), default="blf",
                    help="CAN trace format (default blf)")
-    p.add_argument("--realtime", action="store_true", help="pace SYNC by the wall clock")
+    pacing = p.add_mutually_exclusive_group()
+    pacing.add_argument("--realtime", action="store_true",
+                        help="pace SYNC by the wall clock (the default on every bus that is not a "
+                             "simulated bench)")
+    pacing.add_argument("--lockstep", action="store_true",
+                        help="the next SYNC as soon as the simulator answered (the default on a "
+                             "simulated bench; refused on any other bus)")
     p.add_argument("--period-ms", type=positive_float, default=5.0, help="control period (default 5 ms)")
     p.add_argument("--deadline-ms", type=positive_float, default=250.0,
                    help="how long a SYNC cycle waits for its TPDOs (default 250 ms)")
@@ -42,11 +48,23 @@ def _validate(args: argparse.Namespace) -> None:
         KeySpace(args.robot, args.prefix)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if args.lockstep:  # before the bus is opened: a physical bus is refused as such
+        from ersac_hil.agent.safety import lockstep_refusal, physical_bus
+        from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
+        try:
+            bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
+                                     parse_bus_kwargs(args.bus_kwargs))
+        except BusConfigError as exc:
+            raise UsageError(str(exc)) from None
+        why = physical_bus(bus)
+        if why is not None:
+            raise UsageError(lockstep_refusal(bus, why))
     usable_bus(args.bus_interface, args.bus_channel, args.bitrate, args.bus_kwargs)
 
 
 def _run(args: argparse.Namespace) -> int:
     from ersac_hil.agent.bus import BusTiming
+    from ersac_hil.agent.safety import physical_bus
     from ersac_hil.agent.service import AgentConfig, AgentService
     from ersac_hil.lifecycle import serve
     from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
@@ -54,17 +72,19 @@ def _run(args: argparse.Namespace) -> int:
     try:
         bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
                                  parse_bus_kwargs(args.bus_kwargs))
+        real = physical_bus(bus) is not None
+        pacing = "realtime" if args.realtime else "lockstep" if args.lockstep else "auto"
         timing = BusTiming(period_s=args.period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
-                           realtime=args.realtime)
-        if args.realtime:  # before the bus and the Zenoh session exist: their threads inherit it
+                           realtime=args.realtime or real)
+        if timing.realtime:  # before the bus and the Zenoh session exist: their threads inherit it
             from protocol.can.realtime import request_realtime
             print(f"agent: {request_realtime()}", flush=True)
         config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
                              zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
                              record_can=args.record_can, record_format=args.record_format,
-                             timing=timing)
+                             timing=timing, pacing=pacing)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),
                        mode=config.zenoh_mode)  # refuse a bad or insecure session config up front
@@ -77,7 +97,8 @@ def _run(args: argparse.Namespace) -> int:
             from protocol.can.realtime import quiet_gc
             service.start()
             quiet_gc()
-            print(f"agent ready: {service.keys.root} on {bus.describe()}", flush=True)
+            print(f"agent ready: {service.keys.root} on {bus.describe()}, {_pacing_line(pacing, real)}",
+                  flush=True)
 
         def stop(self) -> None:
             service.stop()
@@ -90,3 +111,11 @@ def _run(args: argparse.Namespace) -> int:
     except (ZenohSessionError, AgentFault) as exc:
         print(f"ersac-hil agent: {exc}", flush=True)
         return 1
+
+
+def _pacing_line(pacing: str, real: bool) -> str:
+    if pacing != "auto":
+        return pacing.replace("lockstep", "lock-step").replace("realtime", "real time")
+    if real:
+        return "real time (a physical bus)"
+    return "lock-step on a simulated bench, real time without a test bench"

@@ -22,17 +22,25 @@ looked up by the request's task name among ``EpisodeConfig.tasks`` (``UnknownTas
    first commands) and its commands apply from the first cycle after it returned;
 5. NMT pre-operational (the boards drop their torque), cost terms from the trace.
 
+Safety (``agent.safety``, ``agent.limits``): a run refuses to start while the e-stop is
+engaged; the pacing of each episode follows ``safety.pacing`` (lock-step only on a simulated
+bench, refused elsewhere); an e-stop during the SYNC loop sends the quick-stop commands with the
+next SYNC and ends the episode ``stopped`` (no cost terms: nothing is learnt from it); every
+cyclic setpoint is clamped into ``EpisodeConfig.limits`` (counted as ``clamped_<setpoint>``)
+and ``plan`` refuses a setup outside them.
+
 A fault (PDO timeout, heartbeat lost, EMCY that is not a task outcome, bus down) ends the loop
 at once; the result then carries the fault's status, the counters and the telemetry summary of
 the cycles before it, and no cost terms at all (a cost never mixes valid and missing data).
 """
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -40,13 +48,17 @@ import numpy as np
 from ersac_hil.agent import configure, costs
 from ersac_hil.agent.bus import AgentBus, EmcyEvent
 from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
+from ersac_hil.agent.limits import SetpointLimits
 from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
 from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.safety import BoardQuickStop, EstopEngaged, QuickStop, Safety, pacing
 from ersac_hil.agent.tasks import EmcyMark, Task, default_tasks, lookup
 from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
 from protocol.can.devices import TESTBENCH
 from protocol.can.objects import EmcyCode, Status
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
+
+log = logging.getLogger(__name__)
 
 OUTCOME_EMCY = {EmcyCode.CABLE_BROKEN: "hardware_damage", EmcyCode.OVER_CURRENT: "over_current",
                 EmcyCode.FALLEN: "fallen", EmcyCode.BOTTLE_DROPPED: "bottle_dropped"}
@@ -71,6 +83,8 @@ class EpisodeConfig:
             when not heard yet; how old its last heartbeat may be for it to count as present.
         node_timeout_s: how long the cyclic nodes may take to show up.
         robot: geometry and masses for the balance.
+        limits: host-side limits of every setpoint and plan (``agent.limits``).
+        quick_stop: what an e-stop sends (the drive profile's quick stop).
     """
     tasks: Mapping[str, Task] = field(default_factory=default_tasks)
     lqr: LqrWeights = LqrWeights()
@@ -81,6 +95,8 @@ class EpisodeConfig:
     testbench_recent_s: float = 5.0
     node_timeout_s: float = 1.0
     robot: RobotParameters = UBOT
+    limits: SetpointLimits = field(default_factory=SetpointLimits.from_robot)
+    quick_stop: QuickStop = BoardQuickStop()
 
     def task(self, name: str) -> Task:
         """The served task called ``name`` (``UnknownTask`` if none)."""
@@ -122,8 +138,16 @@ class EpisodeRunner:
     """Runs episodes on an open ``AgentBus`` (one at a time; the caller serialises)."""
 
     def __init__(self, bus: AgentBus, config: EpisodeConfig = EpisodeConfig(),
-                 go: Callable[[float], bool] | None = None) -> None:
-        self.bus, self.config, self.go = bus, config, go
+                 go: Callable[[float], bool] | None = None, safety: Safety | None = None) -> None:
+        """``go(timeout) -> bool``: the go signal without a test bench (default: ``safety``'s,
+        when given, else none: such an episode is aborted). ``safety``: the e-stop, go and
+        pacing of the agent (default: no e-stop source, pacing ``auto``, or ``realtime`` if
+        the bus was opened real-time)."""
+        self.bus, self.config = bus, config
+        self.safety = safety if safety is not None else Safety("realtime" if bus.timing.realtime else "auto")
+        if go is None and safety is not None:
+            go = lambda timeout: self.safety.wait_go(timeout, self.stop_requested)  # noqa: E731
+        self.go = go
         self.stop_requested = threading.Event()
         self._designs: dict[str, BalanceDesign] = {}
 
@@ -133,7 +157,9 @@ class EpisodeRunner:
         (``UnknownTask`` if this agent does not serve its task)."""
         task = self.config.task(request.task)
         n = int(round(task.spec.horizon_s / self.bus.timing.period_s))
-        return Plan(request, n, task, task.plan(request.theta))
+        setup = task.plan(request.theta)
+        self.config.limits.check_plan(setup)
+        return Plan(request, n, task, setup)
 
     def design(self, task: str) -> BalanceDesign:
         """The LQR design of ``task`` (cached): the robot at the task's balance pose."""
@@ -155,14 +181,23 @@ class EpisodeRunner:
         bus = self.bus
         emcy_mark = bus.emcy_count
         started = testbench = False
+        refusal = self.safety.refusal()
+        if refusal is not None:
+            raise EstopEngaged(refusal)
         try:
             bus.wait_for_nodes(CYCLIC, timeout_s=self.config.node_timeout_s)
             bus.nmt_preop()
             testbench = self._testbench_present()
+            realtime = pacing(self.safety.pacing, bus.config, testbench)  # LockstepRefused: nothing moved
+            if realtime != bus.timing.realtime:
+                bus.timing = replace(bus.timing, realtime=realtime)
             if testbench:
                 configure.reset_scenario(bus, task.scenario, request.seed)
             elif not self._wait_go():
-                episode.status, episode.detail = "aborted", "no go signal: the robot was not reset"
+                if self.safety.engaged is not None:
+                    episode.status, episode.detail = "stopped", f"e-stop before the start: {self.safety.engaged}"
+                else:
+                    episode.status, episode.detail = "aborted", "no go signal: the robot was not reset"
                 return self._result(plan, episode, wall0)
             emcy_mark = bus.emcy_count
             first = task.configure(bus, plan.setup)
@@ -203,7 +238,10 @@ class EpisodeRunner:
             time.sleep(0.01)
 
     def _wait_go(self) -> bool:
-        return bool(self.go is not None and self.go(self.config.go_timeout_s))
+        if self.go is None:
+            return False
+        log.warning("no test bench: waiting for go (reset the robot, then 'ersac-hil go')")
+        return bool(self.go(self.config.go_timeout_s))
 
     def _loop(self, plan: Plan, episode: _Episode, commands: Commands, emcy_mark: int) -> None:
         bus, task = self.bus, plan.task
@@ -214,8 +252,11 @@ class EpisodeRunner:
         bus.reset_pacing()
         overruns0 = bus.overruns
         beginning: _BesideTheLoop | None = None
+        estop, limits = self.safety.estop, self.config.limits
         try:
-            tel = bus.cycle(commands)
+            if estop.is_set():
+                return self._quick_stop(episode, commands)
+            tel = bus.cycle(self._clamped(episode, commands))
             ctl.start(tel)
             episode.samples.append(tel)
             if bus.timing.realtime:
@@ -224,6 +265,8 @@ class EpisodeRunner:
             else:
                 commands = task.begin(bus, plan.setup, tel, commands)
             while len(episode.samples) < plan.n_cycles:
+                if estop.is_set():
+                    return self._quick_stop(episode, commands)
                 if self.stop_requested.is_set():
                     episode.status, episode.detail = "aborted", "stopped on request"
                     return
@@ -236,7 +279,7 @@ class EpisodeRunner:
                 commands = Commands(wheel_torque=(left, right), torso_position=commands.torso_position,
                                     arm_left=commands.arm_left, arm_right=commands.arm_right,
                                     arm_control=commands.arm_control)
-                tel = bus.cycle(commands)
+                tel = bus.cycle(self._clamped(episode, commands, limits))
                 episode.samples.append(tel)
                 why = end(tel, len(episode.samples), episode.failures)
                 if why is not None:
@@ -253,6 +296,24 @@ class EpisodeRunner:
                 episode.failures["fallen"] = True
             if ctl.released_cycle is not None and episode.samples:
                 episode.truth["balance_released_s"] = (ctl.released_cycle - episode.samples[0].cycle) * bus.timing.period_s
+
+    def _clamped(self, episode: _Episode, commands: Commands, limits: SetpointLimits | None = None) -> Commands:
+        """``commands`` inside the host-side limits; each clamp counted in the result."""
+        inside, clamped = (limits or self.config.limits).clamp(commands)
+        for name in clamped:
+            episode.count(f"clamped_{name}")
+        return inside
+
+    def _quick_stop(self, episode: _Episode, last: Commands) -> None:
+        """The e-stop's cycle: the profile's quick-stop commands with the next SYNC; the
+        episode ends ``stopped`` (its samples so far stay in the summary, no cost terms)."""
+        episode.status = "stopped"
+        episode.detail = f"e-stop: {self.safety.engaged or 'engaged'}"
+        episode.truth["estop_cycle"] = float(self.bus.cycles + 1)
+        try:
+            self.bus.cycle(self.config.quick_stop.stop_commands(last))
+        except AgentFault as exc:  # sent or not, the run is stopped (NMT pre-operational follows)
+            episode.detail += f"; the quick-stop cycle: {exc}"
 
     def _check_emcy(self, episode: _Episode, emcy_mark: int) -> None:
         events = self.bus.emcy_events(emcy_mark + len(episode.emcy))

@@ -9,7 +9,13 @@
   configuration -> ``fault``; a bug -> ``internal``). The agent stays ready for the next one.
 * publication ``<prefix>/<robot>/episode/done``: ``EpisodeDone`` after every episode it ran;
 * subscriber ``<prefix>/<robot>/agent/go``: the go signal of a person who reset a robot without
-  a test bench (any put).
+  a test bench (any put; ``agent.safety``);
+* subscriber ``<prefix>/<robot>/agent/estop``: ``EstopCommand`` (operator role): engage stops
+  every axis within two SYNC periods and ends the running episode ``stopped``; while engaged
+  every request is refused ``unavailable``; only ``engage: false`` releases it, and a put that
+  does not decode engages it (a garbled stop is still a stop);
+* queryable ``<prefix>/<robot>/agent/state``: ``AgentState`` (ready, waiting for go, running,
+  stopped; the pacing and whether the bus is a simulated bench).
 
 The queryable callback only validates and hands the query to one worker thread (the episode
 runs there and replies when done), so a second request while an episode runs is refused at
@@ -30,11 +36,13 @@ import zenoh
 from ersac_hil.agent.bus import AgentBus, BusTiming
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
+from ersac_hil.agent.safety import Safety, physical_bus
 from ersac_hil.agent.trace import CanRecorder
 from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
-from protocol.zenoh import (EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply, InvalidField,
-                            KeySpace, PayloadError)
+from protocol.can.devices import TESTBENCH
+from protocol.zenoh import (AgentState, EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply,
+                            EstopCommand, InvalidField, KeySpace, PayloadError)
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +59,9 @@ class AgentConfig:
             zenoh_insecure: allow plain endpoints off loopback (``resolve_config``).
         record_can, record_format: write each episode's CAN traffic to
             ``record_can/<episode_id>.<record_format>`` (``blf`` or ``asc``; ``agent.trace``).
-        episode: what episodes do (policies, LQR weights, cost weights).
+        episode: what episodes do (policies, LQR weights, cost weights, limits).
+        pacing: ``auto`` (real time unless the bus is a simulated bench; ``timing.realtime``
+            forces real time), ``realtime`` or ``lockstep`` (``agent.safety.pacing``).
     """
     robot: str
     bus: BusConfig
@@ -65,6 +75,7 @@ class AgentConfig:
     prefix: str = "ersac"
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    pacing: str = "auto"
 
     @property
     def keys(self) -> KeySpace:
@@ -85,7 +96,9 @@ class AgentService:
         self._busy = threading.Lock()
         self._work: queue.Queue = queue.Queue()
         self._worker: threading.Thread | None = None
-        self._go = threading.Event()
+        requested = config.pacing if config.pacing != "auto" or not config.timing.realtime else "realtime"
+        self.safety = Safety(requested)
+        self._running = False
         self.recorder: CanRecorder | None = None
         self.episodes = 0
         self.refused = 0
@@ -94,7 +107,7 @@ class AgentService:
     def start(self) -> None:
         cfg = self.config
         self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
-        self.runner = EpisodeRunner(self.bus, cfg.episode, go=self._wait_go)
+        self.runner = EpisodeRunner(self.bus, cfg.episode, safety=self.safety)
         if cfg.record_can is not None:
             self.recorder = CanRecorder(cfg.bus, cfg.record_can, cfg.record_format).start()
         for task in cfg.episode.tasks:
@@ -108,7 +121,9 @@ class AgentService:
         self._publisher = s.declare_publisher(self.keys.episode_done)
         self._entities = [
             self._publisher,
-            s.declare_subscriber(self.keys.agent_go, lambda sample: self._go.set()),
+            s.declare_subscriber(self.keys.agent_go, self._on_go),
+            s.declare_subscriber(self.keys.agent_estop, self._on_estop),
+            s.declare_queryable(self.keys.agent_state, self._on_state),
             s.declare_queryable(self.keys.episode_run, self._on_query),
             s.liveliness().declare_token(self.keys.agent_session(s.info.zid())),
             s.liveliness().declare_token(self.keys.agent_alive),
@@ -119,7 +134,7 @@ class AgentService:
     def stop(self) -> None:
         if self.runner is not None:
             self.runner.stop_requested.set()
-        self._go.set()
+        self.safety.wake()
         if self._worker is not None:
             self._work.put(None)
             self._worker.join(timeout=10.0)
@@ -155,6 +170,9 @@ class AgentService:
             return self._refuse(query, ErrorReply.from_exception(exc, _payload_code(exc)))
         except Exception as exc:  # never leave a query without a reply
             return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
+        refusal = self.safety.refusal()
+        if refusal is not None:
+            return self._refuse(query, ErrorReply("unavailable", refusal))
         if not self._busy.acquire(blocking=False):
             return self._refuse(query, ErrorReply("busy", "another episode is running on this agent"))
         try:
@@ -190,6 +208,13 @@ class AgentService:
             self._answer(query, plan, outcome)
 
     def _run(self, plan) -> EpisodeResult | ErrorReply:
+        self._running = True
+        try:
+            return self._run_episode(plan)
+        finally:
+            self._running = False
+
+    def _run_episode(self, plan) -> EpisodeResult | ErrorReply:
         if self.recorder is not None:
             self.recorder.begin(plan.request.episode_id)
         try:
@@ -223,12 +248,56 @@ class AgentService:
         except Exception as exc:  # publication is best effort; the reply went out
             log.warning("episode/done not published: %s", exc)
 
-    def _wait_go(self, timeout_s: float) -> bool:
-        """The runner's go signal (no test bench): wait for a put on ``agent/go``."""
-        self._go.clear()
-        log.warning("no test bench: reset the robot, then put anything on %s", self.keys.agent_go)
-        ok = self._go.wait(timeout_s)
-        return ok and not (self.runner is not None and self.runner.stop_requested.is_set())
+    # -- safety --------------------------------------------------------------------------
+    def _on_go(self, sample: zenoh.Sample) -> None:
+        if self.safety.go():
+            log.warning("go: the next episode may start")
+        else:
+            log.warning("go ignored: the e-stop is engaged (release it first)")
+
+    def _on_estop(self, sample: zenoh.Sample) -> None:
+        try:
+            command = EstopCommand.from_json(sample.payload.to_bytes())
+        except Exception as exc:  # noqa: BLE001 - a stop that does not decode is still a stop
+            command = EstopCommand(True, f"undecodable e-stop put ({str(exc)[:200]})")
+        if command.engage:
+            self.safety.engage(command.reason or "e-stop")
+            log.warning("E-STOP engaged: %s", command.reason or "e-stop")
+        else:
+            self.safety.release()
+            log.warning("e-stop released%s", f": {command.reason}" if command.reason else "")
+
+    def state(self) -> AgentState:
+        """What the agent is doing now (the ``agent/state`` reply)."""
+        bench = self._simulated_bench()
+        engaged = self.safety.engaged
+        if engaged is not None:
+            phase, detail = "stopped", f"e-stop engaged: {engaged}; release: ersac-hil estop --release"
+        elif self.safety.waiting or (not bench and not self.safety.armed and not self._running):
+            phase, detail = "waiting_for_go", "no test bench: reset the robot, then ersac-hil go"
+        elif self._running:
+            phase, detail = "running", ""
+        else:
+            phase, detail = "ready", ""
+        requested = self.safety.pacing
+        realtime = requested == "realtime" or (requested == "auto" and not bench)
+        return AgentState(self.keys.robot, phase, "realtime" if realtime else "lockstep",
+                          "simulated" if bench else "real", self.episodes, detail)
+
+    def _simulated_bench(self) -> bool:
+        """The bus may carry a simulator and the test bench was heard recently (no bus traffic)."""
+        if self.bus is None or physical_bus(self.config.bus) is not None:
+            return False
+        age = self.bus.heartbeat_ages().get(TESTBENCH.name)
+        return age is not None and age < self.config.episode.testbench_recent_s
+
+    def _on_state(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.agent_state, self.state().to_json())
+        except Exception as exc:  # noqa: BLE001 - never leave a query without a reply
+            query.reply_err(ErrorReply.from_exception(exc, "internal").to_json())
+        finally:
+            query.drop()
 
 
 def _payload_code(exc: PayloadError) -> str:

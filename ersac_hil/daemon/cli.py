@@ -168,7 +168,11 @@ def _human(reply: Any) -> str:
 
 
 def _state(args: argparse.Namespace) -> int:
-    return _client_call(args, lambda c: c.state())
+    code = _client_call(args, lambda c: c.state())
+    if not args.json:  # the agent's phase too: waiting for go, stopped by an e-stop...
+        from ersac_hil.agent.operator import print_agent_state
+        print_agent_state(args)
+    return code
 
 
 def _payload(build):  # noqa: ANN001, ANN202

@@ -54,6 +54,9 @@ from .learner import (
     WeightsCommand,
 )
 from .messages import (
+    AGENT_PHASES,
+    AgentState,
+    EstopCommand,
     ERROR_CODES,
     SUPPORTED_VERSIONS,
     VERSION,
@@ -84,4 +87,6 @@ __all__ = [
     "KAPPA_MIN", "KAPPA_MAX", "LEARNER_STATUSES", "MAX_CRITIC_POINTS", "GRID_MIN", "GRID_MAX",
     # errors on the wire
     "ErrorReply", "ERROR_CODES",
+    # safety: e-stop and the agent's state
+    "EstopCommand", "AgentState", "AGENT_PHASES",
 ]

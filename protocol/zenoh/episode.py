@@ -32,6 +32,7 @@ STATUSES: tuple[str, ...] = (
     "fault_emcy",  # an EMCY that is not a task outcome (e.g. driver fault)
     "fault_simulator",  # the simulated robot failed (simulation diverged, node error)
     "aborted",  # stopped on request
+    "stopped",  # e-stop: every axis put into quick stop; never learnt from
 )
 #: Task-outcome flags (they are costs/observations, not faults: an "ok" episode may have them).
 FAILURE_FLAGS: tuple[str, ...] = ("hardware_damage", "over_current", "fallen", "bottle_dropped")

@@ -14,6 +14,8 @@ All keys live under ``<prefix>/<robot>`` (default prefix ``ersac``)::
     ersac/<robot>/learner/select     queryable (learner): ?kappa=...;weights=...;adopt=... -> SelectReply
     ersac/<robot>/learner/episodes   publication (learner): LearnerEpisode; queryable: the run so far
     ersac/<robot>/learner/error      publication (learner): ErrorReply for every refused put
+    ersac/<robot>/agent/estop        subscription (agent): EstopCommand (operator only)
+    ersac/<robot>/agent/state        queryable (agent): -> AgentState (waiting for go, stopped...)
 
 Zenoh key rules enforced here: chunks are non-empty (no leading, trailing or doubled ``/``),
 and contain no wildcard or selector characters (``*``, ``$``, ``?``, ``#``) nor whitespace.
@@ -49,6 +51,9 @@ _SUFFIXES = {
     "learner_episodes": "learner/episodes",
     "learner_error": "learner/error",
 }
+
+# -- safety: the e-stop and the agent's own state --------------------------------------------
+_SUFFIXES.update({"agent_estop": "agent/estop", "agent_state": "agent/state"})
 
 
 def validate_chunk(chunk: Any, what: str = "key chunk") -> str:
@@ -124,6 +129,16 @@ class KeySpace:
     def agent_go(self) -> str:
         """Put by a person who reset a robot without a test bench: the agent may start."""
         return self._key("agent_go")
+
+    @property
+    def agent_estop(self) -> str:
+        """Put by an operator: engage (or release) the emergency stop of the robot."""
+        return self._key("agent_estop")
+
+    @property
+    def agent_state(self) -> str:
+        """Queryable on the agent: its ``AgentState`` (ready, waiting for go, running, stopped)."""
+        return self._key("agent_state")
 
     @property
     def episode_run(self) -> str:

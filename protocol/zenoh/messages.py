@@ -26,7 +26,8 @@ from msgspec import Meta
 from . import codec
 from .codec import FrozenMap
 from .errors import InvalidField, UnsupportedVersion
-from .fields import Record, field_types, unwrap, convert
+from .fields import Record, anchored, field_types, unwrap, convert
+from .keys import CHUNK_PATTERN
 
 __all__ = [
     "VERSION",
@@ -181,3 +182,56 @@ class ErrorReply(Message, frozen=True):
         reason = str(exc) or type(exc).__name__
         return cls(code, reason[:4096])
 
+
+
+# -- safety: the e-stop and the agent's own state ---------------------------------------------
+#: What the agent is doing (``AgentState.phase``).
+AGENT_PHASES: tuple[str, ...] = (
+    "ready",  # serves the next episode at once
+    "waiting_for_go",  # no test bench: the next episode waits for a person's go (``ersac-hil go``)
+    "running",  # an episode is running
+    "stopped",  # e-stop engaged: every axis in quick stop, no episode until released
+)
+#: How the agent paces SYNC (``AgentState.pacing``).
+PACINGS: tuple[str, ...] = ("realtime", "lockstep")
+#: What the agent knows about its bus (``AgentState.bench``).
+BENCHES: tuple[str, ...] = ("simulated", "real")
+
+
+class EstopCommand(Message, frozen=True):
+    """Payload of a put on ``agent/estop`` (operator role only).
+
+    Attributes:
+        engage: ``true`` stops every axis (quick stop) and ends the running episode as
+            ``stopped``; ``false`` releases a stop (the robot then waits for go again where
+            there is no test bench).
+        reason: who stopped it and why (free text, may be empty).
+    """
+
+    TYPE: ClassVar[str] = "estop_command"
+
+    engage: bool
+    reason: Annotated[str, Meta(max_length=4096)] = ""
+
+
+class AgentState(Message, frozen=True):
+    """Reply of the ``agent/state`` queryable.
+
+    Attributes:
+        robot: the robot's name.
+        phase: one of :data:`AGENT_PHASES`.
+        pacing: one of :data:`PACINGS`: how the next episode paces SYNC.
+        bench: one of :data:`BENCHES`: ``simulated`` while the simulator's test-bench node is
+            heard on the bus (and the bus is not a physical SocketCAN channel), else ``real``.
+        episodes: episodes run since the agent started.
+        detail: why the agent is in this phase (the e-stop's reason, what it waits for).
+    """
+
+    TYPE: ClassVar[str] = "agent_state"
+
+    robot: Annotated[str, Meta(pattern=anchored(CHUNK_PATTERN))]
+    phase: Literal[AGENT_PHASES]  # type: ignore[valid-type]
+    pacing: Literal[PACINGS]  # type: ignore[valid-type]
+    bench: Literal[BENCHES]  # type: ignore[valid-type]
+    episodes: Annotated[int, Meta(ge=0, le=2**53)]
+    detail: Annotated[str, Meta(max_length=4096)] = ""

@@ -42,7 +42,13 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "r", *Z), "no CAN interface/channel given"),
         (("--robot", "r", *Z, "--bus-interface", "zenoh", "--bus-channel", "c",
           "--bus-kwargs", "zenoh_config={tmp}/none.json5"), "no such file"),
+        (("--robot", "r", *Z, "--bus-interface", "socketcan", "--bus-channel", "can0", "--lockstep"),
+         "lock-step refused on socketcan:can0: socketcan can0 is a physical CAN bus"),
+        (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--lockstep",
+          "--realtime"), "not allowed with argument"),
     ],
+    "estop": [(("--robot", "a/b", *Z), "not a valid key chunk"), (("--timeout", "0", *Z), "must be positive")],
+    "go": [(("--robot", "a/b", *Z), "not a valid key chunk"), (("--timeout", "-1", *Z), "must be positive")],
     "daemon": [
         (("--robot", "r", "--episodes", "0", *Z, "--db", "{tmp}/d.db"), "episodes"),
         (("--robot", "r", "--kappa", "nan", *Z, "--db", "{tmp}/d.db"), "finite"),

@@ -18,6 +18,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from protocol.zenoh import (
+    AGENT_PHASES,
+    CHUNK_PATTERN,
+    AgentState,
+    EstopCommand,
     ERROR_CODES,
     FAILURE_FLAGS,
     GRID_MAX,
@@ -179,6 +183,10 @@ messages = st.one_of(
     st.builds(KappaCommand, kappas),
     st.builds(WeightsCommand, st.dictionaries(names, nonneg, min_size=1, max_size=8)),
     st.builds(ErrorReply, st.sampled_from(ERROR_CODES), st.text(min_size=1, max_size=200)),
+    # safety: the e-stop and the agent's state
+    st.builds(EstopCommand, st.booleans(), st.text(max_size=200)),
+    st.builds(AgentState, st.from_regex(CHUNK_PATTERN, fullmatch=True), st.sampled_from(AGENT_PHASES), st.sampled_from(("realtime", "lockstep")),
+              st.sampled_from(("simulated", "real")), st.integers(0, 10**6), st.text(max_size=200)),
 )
 
 json_scalars = st.none() | st.booleans() | st.integers() | finite | st.text(max_size=10)
@@ -205,7 +213,7 @@ def test_every_message_type_is_generated():
     assert {c.TYPE for c in MESSAGE_CLASSES} == {
         "episode_request", "episode_result", "episode_done", "learner_state", "critic_point",
         "critic_reply", "kappa_command", "weights_command", "select_reply", "learner_episode",
-        "error",
+        "error", "estop_command", "agent_state",
     }
 
 

@@ -1,0 +1,120 @@
+"""Host-side limits on every setpoint the agent sends (pure: no I/O).
+
+Two kinds of setpoint, two rules:
+
+* **cyclic setpoints** (wheel torques, torso and arm position setpoints in every RPDO) are
+  clamped into the limits before they go on the bus, as a drive clamps what it receives; every
+  clamp is counted per setpoint and the counts go into the episode result's ``fault_counts``
+  as ``clamped_<setpoint>`` (cycles clamped), so a run that leaned on a limit says so;
+* **a plan** (what theta becomes: the arms' stiffness and damping, a lifting spline's knots
+  and its sampled trajectory) outside the limits is refused (``LimitViolation``, reply
+  ``invalid_request``) before anything is sent: nothing moves.
+
+The limits come from the robot: ``SetpointLimits.from_robot`` takes today's uBot constants
+(``agent.robot.UBOT``: the joints' mechanical ranges, the wheel drivers' torque at their
+current limit, the stiffness and damping the arm boards accept); a robot description narrows
+them. Inside the limits nothing changes: a clamp is the identity there, so episodes of the
+board profile stay bit for bit the same.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ersac_hil.agent.errors import LimitViolation
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.telemetry import Commands
+
+TORSO_RANGE = (-2.6, 2.6)
+"""Mechanical range of the uBot's torso yaw [rad] (until the robot description gives it)."""
+
+
+@dataclass(frozen=True)
+class SetpointLimits:
+    """Attributes (SI units):
+        wheel_torque: largest |torque| per wheel [N m].
+        torso, shoulder, elbow: position ranges [rad] (low, high).
+        stiffness, damping: accepted joint impedance [N m/rad], [N m s/rad] (low, high).
+        velocity: largest arm joint velocity of a planned trajectory [rad/s].
+    """
+    wheel_torque: float
+    torso: tuple[float, float]
+    shoulder: tuple[float, float]
+    elbow: tuple[float, float]
+    stiffness: tuple[float, float]
+    damping: tuple[float, float]
+    velocity: float
+
+    def __post_init__(self) -> None:
+        pairs = (self.torso, self.shoulder, self.elbow, self.stiffness, self.damping)
+        if not (self.wheel_torque > 0 and self.velocity > 0
+                and all(math.isfinite(lo) and math.isfinite(hi) and lo < hi for lo, hi in pairs)):
+            raise ValueError(f"invalid setpoint limits {self}")
+
+    @classmethod
+    def from_robot(cls, robot: RobotParameters = UBOT) -> "SetpointLimits":
+        """Today's constants of the uBot (``RobotParameters``)."""
+        return cls(wheel_torque=robot.wheel_torque_limit, torso=TORSO_RANGE,
+                   shoulder=robot.shoulder_range, elbow=robot.elbow_range,
+                   stiffness=(0.0, robot.stiffness_max), damping=(0.0, robot.damping_max),
+                   velocity=robot.arm_velocity_limit)
+
+    # -- cyclic setpoints: clamped -----------------------------------------------------------
+    def clamp(self, commands: Commands) -> tuple[Commands, tuple[str, ...]]:
+        """``commands`` inside the limits, and the names of the setpoints that were clamped
+        (``wheel_torque``, ``torso_position``, ``arm_position``); the same object when none was."""
+        tl = self.wheel_torque
+        left, right = commands.wheel_torque
+        torque = (_clip(left, -tl, tl), _clip(right, -tl, tl))
+        torso = _clip(commands.torso_position, *self.torso)
+        arms = tuple((_clip(s, *self.shoulder), _clip(e, *self.elbow))
+                     for s, e in (commands.arm_left, commands.arm_right))
+        clamped = tuple(name for name, changed in (
+            ("wheel_torque", torque != tuple(commands.wheel_torque)),
+            ("torso_position", torso != commands.torso_position),
+            ("arm_position", arms != (tuple(commands.arm_left), tuple(commands.arm_right)))) if changed)
+        if not clamped:
+            return commands, ()
+        return replace(commands, wheel_torque=torque, torso_position=torso,
+                       arm_left=arms[0], arm_right=arms[1]), clamped
+
+    # -- plans: refused ----------------------------------------------------------------------
+    def check_plan(self, setup: Any) -> None:
+        """Refuse (``LimitViolation`` naming the value and the limit) a task's setup outside
+        the limits: its ``impedance`` (stiffness, damping of each arm joint), its ``pose``,
+        its ``spline`` (knot positions, and the trajectory sampled every 10 ms)."""
+        impedance = getattr(setup, "impedance", None)
+        if impedance is not None:
+            for joint, k, d in zip(("shoulder", "elbow"), impedance.stiffness, impedance.damping):
+                _within(f"{joint} stiffness", k, self.stiffness, "N m/rad")
+                _within(f"{joint} damping", d, self.damping, "N m s/rad")
+        pose = getattr(setup, "pose", None)
+        if pose is not None:
+            _within("shoulder position", pose[0], self.shoulder, "rad")
+            _within("elbow position", pose[1], self.elbow, "rad")
+        spline = getattr(setup, "spline", None)
+        if spline is not None:
+            t = np.arange(0.0, spline.duration, 0.01)
+            q, qd = spline.sample(np.append(t, spline.duration))
+            for k, (joint, box) in enumerate((("shoulder", self.shoulder), ("elbow", self.elbow))):
+                positions = np.concatenate([spline.positions[:, k], q[:, k]])
+                _within(f"spline {joint} position", float(positions.min()), box, "rad")
+                _within(f"spline {joint} position", float(positions.max()), box, "rad")
+                fastest = float(np.abs(qd[:, k]).max())
+                if fastest > self.velocity:
+                    raise LimitViolation(f"plan refused: spline {joint} velocity {fastest:.4g} rad/s is "
+                                         f"above the limit {self.velocity:g} rad/s; nothing moved")
+
+
+def _clip(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value
+
+
+def _within(what: str, value: float, box: tuple[float, float], unit: str) -> None:
+    low, high = box
+    if not low <= value <= high:  # also refuses NaN
+        raise LimitViolation(f"plan refused: {what} {value:.4g} {unit} outside the limits "
+                             f"[{low:g}, {high:g}] {unit}; nothing moved")
