@@ -103,7 +103,8 @@ def test_estop_stops_every_axis_within_two_sync_periods_and_ends_the_episode_sto
             config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
             with AgentService(config) as agent, router.open_client() as session:
                 wait_for_agent(session, keys)
-                assert agent_state(session, keys).phase == "ready"  # a simulated bench: no go needed
+                wait_until(lambda: agent_state(session, keys).phase == "ready",  # once the bench is heard
+                           what="a simulated bench, ready without a go")
                 replies: list = []
                 t = threading.Thread(target=lambda: replies.append(ask(session, keys, request("bracing", (0.5,)))))
                 t.start()
