@@ -110,10 +110,13 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
     db = out / "demo.db"
     for stale in (db, db.with_name(db.name + "-wal"), db.with_name(db.name + "-shm")):
         stale.unlink(missing_ok=True)
+    for stale in (out / "series").glob("*.npz"):  # a previous demo's episodes
+        stale.unlink()
     started = time.monotonic()
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
                   pairs=config.fleet, secure=config.secure, router_host=config.router_host,
-                  agent_host=config.agent_host, can=config.can, fleet=True, busy_poll=config.busy_poll)
+                  agent_host=config.agent_host, can=config.can, fleet=True, busy_poll=config.busy_poll,
+                  series=out / "series")
     batch = config.fleet if config.batch is None else config.batch
     code = 1
     try:
@@ -164,7 +167,7 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         if not runs:
             say("demo: no run in the store, no report")
             return code or 1
-        summary = write_report(db, runs[-1].run_id, out)
+        summary = write_report(db, runs[-1].run_id, out, series=out / "series")
         cost = summary["cost"]
         last = cost["last_10"]
         ends = [a.finished_s for a in attempts if a.finished_s is not None]

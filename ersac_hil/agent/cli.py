@@ -26,6 +26,9 @@ def register(subparsers) -> None:
                    help="write each episode's CAN traffic to DIR/<episode_id>.blf (or .asc)")
     p.add_argument("--record-format", dest="record_format", choices=("blf", "asc"), default="blf",
                    help="CAN trace format (default blf)")
+    p.add_argument("--record-series", dest="record_series", metavar="DIR",
+                   help="write each episode's per-cycle time series to DIR/<episode_id>.npz "
+                        "(after its reply; ersac-hil report draws them)")
     pacing = p.add_mutually_exclusive_group()
     pacing.add_argument("--realtime", action="store_true",
                         help="pace SYNC by the wall clock (the default on every bus that is not a "
@@ -84,6 +87,7 @@ def _run(args: argparse.Namespace) -> int:
                              zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
                              record_can=args.record_can, record_format=args.record_format,
+                             record_series=args.record_series,
                              timing=timing, pacing=pacing)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),

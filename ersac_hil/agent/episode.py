@@ -123,6 +123,7 @@ class Plan:
 class _Episode:
     """Mutable record of one episode in progress (``run`` means a learning run elsewhere)."""
     samples: list[Telemetry] = field(default_factory=list)
+    commands: list[Commands] = field(default_factory=list)  # sent with each sample
     failures: dict[str, bool] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
     status: str = "ok"
@@ -150,6 +151,7 @@ class EpisodeRunner:
         self.go = go
         self.stop_requested = threading.Event()
         self._designs: dict[str, BalanceDesign] = {}
+        self.last: LastEpisode | None = None
 
     # -- planning (pure) -------------------------------------------------------------------
     def plan(self, request: EpisodeRequest) -> Plan:
@@ -259,6 +261,7 @@ class EpisodeRunner:
             tel = bus.cycle(self._clamped(episode, commands))
             ctl.start(tel)
             episode.samples.append(tel)
+            episode.commands.append(commands)
             if bus.timing.realtime:
                 first, held = tel, commands
                 beginning = _BesideTheLoop(lambda: task.begin(bus, plan.setup, first, held))
@@ -281,6 +284,7 @@ class EpisodeRunner:
                                     arm_control=commands.arm_control)
                 tel = bus.cycle(self._clamped(episode, commands, limits))
                 episode.samples.append(tel)
+                episode.commands.append(commands)
                 why = end(tel, len(episode.samples), episode.failures)
                 if why is not None:
                     episode.detail = why
@@ -362,11 +366,29 @@ class EpisodeRunner:
             total = TASKS[request.task].total_cost(terms, self.config.weights.get(request.task))
         failures = {flag: episode.failures.get(flag, False) for flag in
                     ("hardware_damage", "over_current", "fallen", "bottle_dropped")}
+        first_cycle = episode.samples[0].cycle if episode.samples else 0
+        self.last = LastEpisode(plan, tuple(episode.samples), tuple(episode.commands), tuple(
+            (ev.code, ev.device, ev.cycle - first_cycle) for ev in episode.emcy))
         return EpisodeResult(
             episode_id=request.episode_id, task=request.task, status=episode.status,
             cost_terms=terms, total_cost=total, failures=failures,
             duration_s=len(trace) * period, wall_s=time.monotonic() - wall0,
             telemetry=summary, fault_counts=dict(episode.counts), detail=episode.detail[:4096])
+
+
+@dataclass(frozen=True)
+class LastEpisode:
+    """What the runner kept of its latest episode (``agent.series`` writes it on request).
+
+    Attributes:
+        plan: the episode's plan.
+        samples, commands: every cycle's telemetry and the commands sent with it.
+        emcy: (code, device, cycle index from the first sample) of each EMCY of the episode.
+    """
+    plan: Plan
+    samples: tuple[Telemetry, ...]
+    commands: tuple[Commands, ...]
+    emcy: tuple[tuple[int, str, int], ...]
 
 
 def _fault_counter(exc: AgentFault) -> str:

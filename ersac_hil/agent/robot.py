@@ -69,6 +69,12 @@ class RobotParameters:
         arm_velocity_limit: default reference velocity limit of the arm boards [rad/s].
         stiffness_max, damping_max: what the arm boards accept [N m/rad, N m s/rad].
         shoulder_armature, elbow_armature: reflected rotor inertias [kg m^2].
+        elbow_kt, elbow_gear: elbow motor torque constant [N m/A] and reduction.
+        cable_pulley_radius, cable_pretension: the elbow's drive cable runs over a pulley of
+            this radius [m], pre-tensioned [N]; its loaded strand carries
+            ``pretension + |tau_elbow| / radius`` (``cable_tension``).
+        cable_breaking_tension: median breaking tension of an elbow cable [N];
+            cable_strength_range: the weakest and the strongest cable [N] (cables differ).
     """
     wheel_radius: float = 0.10
     wheel_mass: float = 1.0
@@ -97,6 +103,18 @@ class RobotParameters:
     shoulder_armature: float = 0.0858
     elbow_armature: float = 0.0482
     gravity: float = 9.81
+    elbow_kt: float = 0.0259
+    elbow_gear: float = 120.0
+    cable_pulley_radius: float = 0.02
+    cable_pretension: float = 40.0
+    cable_breaking_tension: float = 960.0
+    cable_strength_range: tuple[float, float] = (859.0, 1061.0)
+
+    def cable_tension(self, elbow_current: np.ndarray) -> np.ndarray:
+        """Tension of the elbow cable's loaded strand [N] from the elbow motor current [A]
+        (any shape): the motor torque through the gear, over the pulley."""
+        torque = self.elbow_kt * self.elbow_gear * np.abs(np.asarray(elbow_current, dtype=float))
+        return self.cable_pretension + torque / self.cable_pulley_radius
 
     @property
     def wheel_torque_limit(self) -> float:

@@ -29,6 +29,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import msgspec
 import zenoh
@@ -59,6 +60,8 @@ class AgentConfig:
             zenoh_insecure: allow plain endpoints off loopback (``resolve_config``).
         record_can, record_format: write each episode's CAN traffic to
             ``record_can/<episode_id>.<record_format>`` (``blf`` or ``asc``; ``agent.trace``).
+        record_series: write each episode's per-cycle time series to
+            ``record_series/<episode_id>.npz`` after its reply (``agent.series``).
         episode: what episodes do (policies, LQR weights, cost weights, limits).
         pacing: ``auto`` (real time unless the bus is a simulated bench; ``timing.realtime``
             forces real time), ``realtime`` or ``lockstep`` (``agent.safety.pacing``).
@@ -72,6 +75,7 @@ class AgentConfig:
     zenoh_insecure: bool = False
     record_can: str | None = None
     record_format: str = "blf"
+    record_series: str | None = None
     prefix: str = "ersac"
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
@@ -206,6 +210,8 @@ class AgentService:
                 # has the reply, and must not find the agent busy with this one
                 self._busy.release()
             self._answer(query, plan, outcome)
+            if self.config.record_series is not None and isinstance(outcome, EpisodeResult):
+                self._write_series(outcome)
 
     def _run(self, plan) -> EpisodeResult | ErrorReply:
         self._running = True
@@ -298,6 +304,28 @@ class AgentService:
             query.reply_err(ErrorReply.from_exception(exc, "internal").to_json())
         finally:
             query.drop()
+
+    def _write_series(self, result: EpisodeResult) -> None:
+        """The time series of the episode just answered (``agent.series``); a file that cannot
+        be written is logged, the episode still counts."""
+        from ersac_hil.agent.series import series_of
+        from ersac_hil.episode_series import write_series
+
+        last = self.runner.last if self.runner is not None else None
+        if last is None or last.plan.request.episode_id != result.episode_id:
+            return
+        request = last.plan.request
+        meta = {"episode_id": result.episode_id, "task": result.task, "theta": list(request.theta),
+                "seed": request.seed, "status": result.status, "failures": dict(result.failures),
+                "cost_terms": dict(result.cost_terms), "total_cost": result.total_cost,
+                "telemetry": dict(result.telemetry)}
+        try:
+            directory = Path(self.config.record_series)
+            directory.mkdir(parents=True, exist_ok=True)
+            write_series(directory / f"{result.episode_id}.npz",
+                         series_of(last, self.bus.timing.period_s, meta, self.config.episode.robot))
+        except (OSError, ValueError) as exc:
+            log.warning("time series of %s not written: %s", result.episode_id, exc)
 
 
 def _payload_code(exc: PayloadError) -> str:

@@ -246,6 +246,8 @@ def _select(args: argparse.Namespace) -> int:
 def _check_report(args: argparse.Namespace) -> None:
     if not Path(args.db).is_file():
         raise UsageError(f"no store at {args.db}")
+    if args.series is not None and not Path(args.series).is_dir():
+        raise UsageError(f"--series: no directory {args.series}")
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -259,7 +261,7 @@ def _report(args: argparse.Namespace) -> int:
             if not runs:
                 return _fail(f"no run in {args.db}")
             run_id = runs[-1].run_id
-        summary = write_report(args.db, run_id, args.out)
+        summary = write_report(args.db, run_id, args.out, series=args.series)
     except StoreError as exc:
         return _fail(str(exc))
     print(f"report of run {summary['run_id']} in {Path(args.out).resolve()}: "
@@ -366,4 +368,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_id", help="run id, or 'latest'")
     p.add_argument("--db", default="ersac.db", help="SQLite store (default ersac.db)")
     p.add_argument("--out", type=output_dir, default="report", help="output directory (default ./report)")
+    p.add_argument("--series", metavar="DIR",
+                   help="the agent's time series files (agent --record-series DIR): draws episode.png")
     p.set_defaults(func=_report, validate=_check_report)

@@ -6,12 +6,17 @@ Files written to ``out`` (see :func:`write_report`):
   the critic's J~ at the policy mean and the policy mean itself per update (kappa changes
   marked); failed attempts as ticks at the bottom.
 * ``critic.png`` (1-D tasks) - the paper's Figure 2: cost observations against the executed
-  theta (hardware damage in red), the critic mean J~ with the J~ +/- 2 r~ band,
-  F~ = J~ + kappa r~, the final theta.
-* ``telemetry.png`` - cost terms and telemetry summary figures of the first and last ok
-  episodes, side by side.
+  theta (hardware damage in red), the critic mean J~ with the J~ +/- 2 r~ band and
+  F~ = J~ + kappa r~ over the explored region, the final theta (``critic_plots``).
+* ``risk.png`` (1-D tasks) - the risk trade-off of the run's critic: F~ for kappa 0..4 over
+  the data with their argmins (offline selection), and expected cost against risk of the
+  selections for kappa 0..4 (``critic_plots``).
+* ``episode.png`` - the first ok episode, the first damaging one and the last against time:
+  pitch, pitch rate, arm angles against their setpoints, motor currents, cable tension
+  against its breaking tension, strike and ground contact marked (``episode_plot``); only
+  when the agent recorded the episodes' time series (``agent --record-series DIR``, ``series``).
 * ``summary.json`` - final theta, kappa, weights, episode and attempt counts, cost
-  statistics, wall time, critic at the final theta, file names.
+  statistics, wall time, critic at the final theta, the selections for kappa 0..4, file names.
 """
 from __future__ import annotations
 
@@ -31,12 +36,13 @@ import numpy as np  # noqa: E402
 
 from protocol.zenoh import get_task  # noqa: E402
 
+from ..episode_series import read_series  # noqa: E402
+from .critic_plots import KAPPAS, TRADE_OFF_KAPPAS, critic_curve, plot_critic, plot_risk, selections  # noqa: E402
+from .engine import NotEnoughData  # noqa: E402
+from .episode_plot import plot_episodes  # noqa: E402
 from .store import EpisodeRecord, RunRecord, Store  # noqa: E402
 
-__all__ = ["write_report", "cost_statistics", "GRID_POINTS"]
-
-#: Points of the critic curve in the 1-D plot.
-GRID_POINTS = 101
+__all__ = ["write_report", "cost_statistics"]
 
 
 def _stats(values: Sequence[float]) -> dict[str, float | int | None]:
@@ -84,7 +90,7 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
     spec = get_task(run.task)
     updates = store.updates(run.run_id)
     failed = [a for a in store.attempts(run.run_id) if a.status not in ("ok", "pending")]
-    fig, (ax, bx) = plt.subplots(2, 1, figsize=(9, 7), sharex=True, constrained_layout=True)
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(10.5, 7), sharex=True, constrained_layout=True)
     idx = np.arange(1, len(episodes) + 1)
     # an update is drawn at its last episode (with a batch of k, one update per k episodes)
     position = {e.episode_id: i + 1 for i, e in enumerate(episodes)}
@@ -103,7 +109,7 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
                 "x", color="tab:orange", label=f"failed attempts ({len(failed)})")
     ax.set_ylabel("cost J")
     ax.set_title(f"run {run.run_id}: {run.task}, {len(episodes)} episodes")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)  # off the data
     ax.grid(alpha=0.3)
     if updates:
         after = np.array([u.theta_after for u in updates])
@@ -116,73 +122,41 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
                 bx.text(at[i], bx.get_ylim()[1], f" kappa {kappas[i]:g}", fontsize=7, va="top")
     bx.set_xlabel("episode")
     bx.set_ylabel("policy mean theta")
-    bx.legend(loc="best", fontsize=8, ncol=2)
+    bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     bx.grid(alpha=0.3)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def _critic_plot(path: Path, run: RunRecord, episodes: list[EpisodeRecord], engine: Any,
-                 final_theta: Sequence[float]) -> dict[str, float]:
-    spec = get_task(run.task)
-    lo, hi = spec.lower[0], spec.upper[0]
-    grid = np.linspace(lo, hi, GRID_POINTS)
-    values = np.array(engine.critic([(float(t),) for t in grid]), dtype=float)
-    J, r = values[:, 0], values[:, 1]
-    kappa = engine.kappa
-    fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
-    x = np.array([e.theta[0] for e in episodes])
-    y = np.array([e.cost for e in episodes], dtype=float)
-    damaged = np.array([_damaged(e) for e in episodes], dtype=bool)
-    ax.plot(x[~damaged], y[~damaged], "o", ms=4, color="tab:blue", alpha=0.7, label="cost observations")
-    if damaged.any():
-        ax.plot(x[damaged], y[damaged], "o", ms=5, color="tab:red", label="hardware damage")
-    ax.fill_between(grid, J - 2 * r, J + 2 * r, color="tab:green", alpha=0.2, label="J~ +/- 2 r~")
-    ax.plot(grid, J, "-", color="tab:green", lw=2, label="critic mean J~")
-    if kappa != 0:
-        ax.plot(grid, J + kappa * r, "--", color="tab:purple", lw=1.5, label=f"F~ = J~ + {kappa:g} r~")
-    ax.axvline(final_theta[0], color="k", lw=2, zorder=5, label=f"final theta = {final_theta[0]:.3f}")
-    pad = 0.02 * (hi - lo)
-    ax.set_xlim(lo - pad, hi + pad)
-    ax.set_xlabel(spec.param_names[0])
-    ax.set_ylabel("cost J")
-    ax.set_title(f"{run.task}: critic after {len(episodes)} episodes (kappa = {kappa:g})")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    (j_final, r_final), = engine.critic([tuple(final_theta)])
-    return {"J": float(j_final), "r": float(r_final), "F": float(j_final + kappa * r_final)}
-
-
-def _telemetry_plot(path: Path, first: EpisodeRecord, last: EpisodeRecord) -> None:
-    names = [("cost term", k) for k in (first.cost_terms or {})]
-    names += [("telemetry", k) for k in sorted(set(first.telemetry or {}) | set(last.telemetry or {}))]
-    cols = 4
-    rows = max(1, math.ceil(len(names) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 2.4 * rows), constrained_layout=True,
-                             squeeze=False)
-    for ax, (group, name) in zip(axes.flat, names):
-        source = "cost_terms" if group == "cost term" else "telemetry"
-        vals = [float((getattr(e, source) or {}).get(name, math.nan)) for e in (first, last)]
-        ax.bar([f"#{first.idx + 1}", f"#{last.idx + 1}"], vals, color=["tab:grey", "tab:blue"])
-        ax.set_title(f"{name}", fontsize=9)
-        ax.tick_params(labelsize=8)
-        ax.grid(alpha=0.3, axis="y")
-    for ax in list(axes.flat)[len(names):]:
-        ax.axis("off")
-    fig.suptitle(f"first (#{first.idx + 1}, theta {_vec(first.theta)}) vs last "
-                 f"(#{last.idx + 1}, theta {_vec(last.theta)}) episode", fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def _episode_series(series: Path, episodes: list[EpisodeRecord]) -> list[tuple[str, Any]]:
+    """(label, series) of the first ok episode, the first that damaged the hardware and the
+    last, those whose time series file is in ``series`` (unreadable files are left out)."""
+    picks: list[tuple[str, EpisodeRecord]] = []
+    if episodes:
+        picks.append((f"first episode (#{episodes[0].idx + 1})", episodes[0]))
+        damaged = [e for e in episodes if _damaged(e)]
+        if damaged and damaged[0] is not episodes[0]:
+            picks.append((f"first damage (#{damaged[0].idx + 1})", damaged[0]))
+        if episodes[-1] not in [e for _, e in picks]:
+            picks.append((f"last episode (#{episodes[-1].idx + 1})", episodes[-1]))
+    out = []
+    for label, e in picks:
+        try:
+            out.append((label, read_series(series / f"{e.episode_id}.npz")))
+        except (OSError, ValueError, KeyError):
+            continue
+    return out
 
 
 def _vec(values: Sequence[float]) -> str:
     return ", ".join(f"{v:.3f}" for v in values)
 
 
-def write_report(db: str | Path, run_id: str, out: str | Path) -> dict[str, Any]:
+def write_report(db: str | Path, run_id: str, out: str | Path, series: str | Path | None = None
+                 ) -> dict[str, Any]:
     """Write the plots and ``summary.json`` of ``run_id`` into ``out``; return the summary.
+    ``series``: the directory of the agent's time series files (``agent --record-series``;
+    without it, no ``episode.png``).
 
     Raises:
         StoreError / RunNotFound: no such store or run.
@@ -203,15 +177,27 @@ def write_report(db: str | Path, run_id: str, out: str | Path) -> dict[str, Any]
         engine = rebuild_engine(store, run) if episodes else None
         final_theta = tuple(engine.theta) if engine else tuple(run.settings["theta0"])
         critic_at_final = None
+        by_kappa = None
         if engine is not None and spec.dim == 1:
-            critic_at_final = _critic_plot(out / "critic.png", run, episodes, engine, final_theta)
+            damaged = np.array([_damaged(e) for e in episodes], dtype=bool)
+            curve = critic_curve(run, episodes, engine)
+            plot_critic(out / "critic.png", run, episodes, damaged, curve, engine.kappa, final_theta)
             files.append("critic.png")
-        elif engine is not None:
+            try:
+                by_kappa = selections(engine, TRADE_OFF_KAPPAS)
+            except NotEnoughData:  # too few episodes for a selection model
+                by_kappa = None
+            if by_kappa:
+                plot_risk(out / "risk.png", run, episodes, damaged, curve,
+                          [s for s in by_kappa if s["kappa"] in KAPPAS], by_kappa, engine.kappa)
+                files.append("risk.png")
+        if engine is not None:
             (j, r), = engine.critic([final_theta])
             critic_at_final = {"J": float(j), "r": float(r), "F": float(j + engine.kappa * r)}
-        if episodes:
-            _telemetry_plot(out / "telemetry.png", episodes[0], episodes[-1])
-            files.append("telemetry.png")
+        shown = _episode_series(Path(series), episodes) if series is not None else []
+        if shown:
+            plot_episodes(out / "episode.png", shown)
+            files.append("episode.png")
         finished = [a.finished_s for a in attempts if a.finished_s is not None]
         summary = {
             "run_id": run.run_id,
@@ -231,6 +217,7 @@ def write_report(db: str | Path, run_id: str, out: str | Path) -> dict[str, Any]
             "weights": dict(engine.weights) if engine else run.settings["weights"],
             "cost": cost_statistics(episodes),
             "critic_at_final_theta": critic_at_final,
+            "selection_by_kappa": by_kappa,
             "wall_time_s": (max(finished) - min(a.requested_s for a in attempts)) if finished else 0.0,
             "agent_wall_s": math.fsum(e.wall_s or 0.0 for e in episodes),
             "learner_updates": len(updates),

@@ -51,12 +51,13 @@ class Stack:
             ``secure``, the simulator and the agent on it with their roles' certificates) or ``hub``.
         busy_poll: seconds the simulators' and agents' CAN-over-Zenoh buses keep polling after
             each sample (``ZenohBus(busy_poll=...)``; 0: off; ``None``: :func:`busy_poll_for`).
+        series: the agents write every episode's time series there (``agent --record-series``).
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
                  router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "direct",
-                 fleet: bool = False, busy_poll: float | None = None) -> None:
+                 fleet: bool = False, busy_poll: float | None = None, series: Path | None = None) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -68,6 +69,7 @@ class Stack:
         self._seed, self._n, self._secure, self._agent_host = seed, pairs, secure, agent_host
         self._fleet = fleet
         self._can = can
+        self._series = ["--record-series", str(series)] if series is not None else []
         self._busy_poll = busy_poll_for(pairs) if busy_poll is None else busy_poll
         logs.mkdir(parents=True, exist_ok=True)
 
@@ -132,7 +134,8 @@ class Stack:
             if self._can == "direct":  # the agent's bus connects to the simulator's listener
                 sim.wait_for(r"^simulator: \d+ nodes", 60, self.stop)
             agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", robot, "--prefix", prefix,
-                                                        *agent_bus, *self.zenoh_args("agent", self._agent_host)))
+                                                        *agent_bus, *self.zenoh_args("agent", self._agent_host),
+                                                        *self._series))
             self.pairs.append(Pair(robot, prefix, channel, sim, agent))
         return self
 

@@ -75,7 +75,7 @@ def test_demo_learns_a_few_episodes_and_reports(tmp_path):
     assert summary["episodes"] == 3 and summary["status"] == "finished" and summary["kappa"] == 2.0
     for name in summary["files"]:
         assert (out / name).stat().st_size > 0
-    assert {"learning_curve.png", "critic.png", "telemetry.png"} <= set(summary["files"])
+    assert {"learning_curve.png", "critic.png", "episode.png"} <= set(summary["files"])
 
     spec = get_task("bracing")
     with Store(out / "demo.db", readonly=True) as store:
@@ -83,6 +83,8 @@ def test_demo_learns_a_few_episodes_and_reports(tmp_path):
         episodes = store.ok_episodes(run.run_id)
         updates = store.updates(run.run_id)
     assert [e.idx for e in episodes] == [0, 1, 2] and len(updates) == 3
+    # the agent recorded every episode's time series (agent --record-series), the report drew them
+    assert {e.episode_id for e in episodes} <= {p.stem for p in (out / "series").glob("*.npz")}
     for e in episodes:
         assert set(e.cost_terms) == set(spec.term_names)  # measured by the agent over CAN
         assert e.cost == pytest.approx(spec.total_cost(e.cost_terms))

@@ -62,6 +62,23 @@ def test_geometry_and_joint_data(model):
         assert model.dof_armature[model.jnt_dofadr[j]] == pytest.approx(arm)
 
 
+def test_elbow_cable_constants_are_the_simulated_ones(model):
+    from firmware_sim.plant.damage import CableSpec
+
+    act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "elbow_left")
+    assert model.actuator_gear[act][0] == pytest.approx(UBOT.elbow_gear)
+    assert model.actuator_gainprm[act][1] == pytest.approx(UBOT.elbow_kt)
+    spec = CableSpec()
+    assert (UBOT.cable_pulley_radius, UBOT.cable_pretension, UBOT.cable_breaking_tension) == (
+        spec.pulley_radius, spec.pretension, spec.breaking_tension)
+    low, high = (spec.breaking_tension * (1 + k * 3 * spec.strength_cv) for k in (-1, 1))
+    assert UBOT.cable_strength_range == pytest.approx((low, high), abs=0.6)  # clipped at +-3 cv
+    # the current that holds the median cable at its limit: tension = pretension + kt G |I| / r
+    limit = (spec.breaking_tension - spec.pretension) * spec.pulley_radius / (UBOT.elbow_kt * UBOT.elbow_gear)
+    assert UBOT.cable_tension(np.array([-limit, 0.0, limit])) == pytest.approx(
+        [spec.breaking_tension, spec.pretension, spec.breaking_tension])
+
+
 def test_wheel_torque_limit_from_motor_constants(model):
     act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "wheel_left")
     assert model.actuator_gear[act][0] == pytest.approx(UBOT.wheel_gear)

@@ -11,6 +11,7 @@ from matplotlib.colors import to_rgb
 
 from ersac_hil.cli import main
 from ersac_hil.daemon.clients import LearnerClient
+from ersac_hil.daemon.critic_plots import TRADE_OFF_KAPPAS
 from ersac_hil.daemon.report import write_report
 from ersac_hil.daemon.store import Store
 from protocol.zenoh import KeySpace
@@ -26,9 +27,17 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
     out = tmp_path / "report"
     summary = write_report(daemon.config.db, daemon.learning.run_id, out)
     assert summary == json.loads((out / "summary.json").read_text())
-    for name in ("learning_curve.png", "critic.png", "telemetry.png"):
+    for name in ("learning_curve.png", "critic.png", "risk.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    assert "episode.png" not in summary["files"]  # no time series recorded (agent --record-series)
+    # the risk trade-off of the run's critic: one offline selection per kappa 0..4; a larger
+    # kappa never buys more risk (the minimiser of J~ + kappa r~ over the same region)
+    by_kappa = summary["selection_by_kappa"]
+    assert [sel["kappa"] for sel in by_kappa] == list(TRADE_OFF_KAPPAS)
+    for a, b in zip(by_kappa, by_kappa[1:]):  # SLSQP's tolerances: 1e-3 relative
+        assert b["r"] <= a["r"] * (1 + 1e-3) and b["J"] >= a["J"] * (1 - 1e-3), (a, b)
+        assert b["F"] == pytest.approx(b["J"] + b["kappa"] * b["r"])
     with Store(daemon.config.db, readonly=True) as store:
         episodes = store.ok_episodes(daemon.learning.run_id)
         costs = [e.cost for e in episodes]
