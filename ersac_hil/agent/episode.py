@@ -123,7 +123,7 @@ class Plan:
 class _Episode:
     """Mutable record of one episode in progress (``run`` means a learning run elsewhere)."""
     samples: list[Telemetry] = field(default_factory=list)
-    commands: list[Commands] = field(default_factory=list)  # sent with each sample
+    commands: list[Commands] = field(default_factory=list)  # sent (clamped) with each sample
     failures: dict[str, bool] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
     status: str = "ok"
@@ -258,10 +258,11 @@ class EpisodeRunner:
         try:
             if estop.is_set():
                 return self._quick_stop(episode, commands)
-            tel = bus.cycle(self._clamped(episode, commands))
+            sent = self._clamped(episode, commands)
+            tel = bus.cycle(sent)
             ctl.start(tel)
             episode.samples.append(tel)
-            episode.commands.append(commands)
+            episode.commands.append(sent)
             if bus.timing.realtime:
                 first, held = tel, commands
                 beginning = _BesideTheLoop(lambda: task.begin(bus, plan.setup, first, held))
@@ -282,9 +283,10 @@ class EpisodeRunner:
                 commands = Commands(wheel_torque=(left, right), torso_position=commands.torso_position,
                                     arm_left=commands.arm_left, arm_right=commands.arm_right,
                                     arm_control=commands.arm_control)
-                tel = bus.cycle(self._clamped(episode, commands, limits))
+                sent = self._clamped(episode, commands, limits)
+                tel = bus.cycle(sent)
                 episode.samples.append(tel)
-                episode.commands.append(commands)
+                episode.commands.append(sent)
                 why = end(tel, len(episode.samples), episode.failures)
                 if why is not None:
                     episode.detail = why
