@@ -3,7 +3,9 @@
     python bench/fault_latency.py [--reps N]
 
 Per CAN backend (``virtual`` in this process, ``remote`` through a loopback hub in this
-process), against the simulated robot (``SimulatedRobot``), N repetitions of:
+process), against the simulated robot (``SimulatedRobot``) in real time (the deadlines of a
+real robot; lock-step waits generously for a simulator a loaded machine stalls, see
+``ersac_hil.agent.bus``), N repetitions of:
 
 * heartbeat loss: the agent's heartbeat stops -> EMCY 0x8130 from every controller (target:
   within 3 agent heartbeat periods + 100 ms, 0.4 s: the controllers consume it with 250 ms);
@@ -30,7 +32,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ersac_hil.agent.bus import AgentBus  # noqa: E402
+from ersac_hil.agent.bus import AgentBus, BusTiming  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.agent.errors import AgentFault, PdoTimeout  # noqa: E402
 from ersac_hil.agent.telemetry import ACTUATED  # noqa: E402
@@ -55,9 +57,9 @@ def backend(kind: str) -> Iterator[BusConfig]:
 
 @contextmanager
 def rig(config: BusConfig) -> Iterator[tuple[SimulatedRobot, AgentBus]]:
-    robot = SimulatedRobot(config)
+    robot = SimulatedRobot(config, realtime=True)
     try:
-        with AgentBus(config) as bus:
+        with AgentBus(config, timing=BusTiming(realtime=True)) as bus:
             bus.wait_for_nodes()
             bus.nmt_start()
             bus.cycle()
@@ -103,7 +105,7 @@ def robot_gone(config: BusConfig) -> float:
 
 
 def no_simulator(config: BusConfig) -> float:
-    with AgentBus(config) as bus:
+    with AgentBus(config, timing=BusTiming(realtime=True)) as bus:
         runner = EpisodeRunner(bus)
         t0 = time.perf_counter()
         result = runner.run(runner.plan(EpisodeRequest("bench", "bracing", (0.5,), 0)))

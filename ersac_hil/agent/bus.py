@@ -19,6 +19,13 @@ as fast as it can. Real-time: SYNC is paced by the wall clock at ``period_s``; a
 finishes after its slot counts as an overrun. Failures raise ``PdoTimeout``,
 ``HeartbeatLost`` or ``BusDown`` (``errors.py``); the caller decides what they end.
 
+Liveness in lock-step: the simulated robot's clock is the SYNC counter, and a loaded machine
+may stall the simulator (or this process) for longer than a real robot's deadlines allow: a
+stalled simulator is late, not gone, and its plant does not move until it answers. So in
+lock-step a node is lost only after ``lockstep_patience_s`` of silence (no TPDO of the cycle,
+no heartbeat), and SDO transfers wait as long; a late cycle is waited for and counts nothing.
+Real time keeps ``deadline_s`` and ``heartbeat_timeout_s``.
+
 Threads: the bus's receive thread (a python-can Notifier, or CAN over Zenoh's push delivery)
 runs the TPDO callbacks (``tpdos.TpdoCollector``) and the heartbeat/EMCY callbacks (short,
 under one condition variable); ``cycle``/SDO calls come from one caller thread.
@@ -46,6 +53,7 @@ from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
+from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.objects import Scale
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
 
@@ -64,15 +72,31 @@ class BusTiming:
         heartbeat_timeout_s: a node whose last heartbeat is older is lost (producers send
             every 100 ms; the default tolerates five missed heartbeats plus scheduling jitter).
         realtime: pace SYNC by the wall clock instead of lock-step.
+        lockstep_patience_s: in lock-step, how long a node may be silent (its TPDOs of a cycle
+            missing, its heartbeat stale) before it is lost, and how long an SDO transfer
+            waits (a simulator stalled by a loaded machine is late, not gone); at least
+            ``deadline_s`` and ``heartbeat_timeout_s``. Unused in real time.
     """
     period_s: float = 0.005
     deadline_s: float = 0.25
     heartbeat_timeout_s: float = 0.6
     realtime: bool = False
+    lockstep_patience_s: float = LOCKSTEP_PATIENCE_S
 
     def __post_init__(self) -> None:
-        if not (0 < self.period_s <= 1 and 0 < self.deadline_s <= 10 and self.heartbeat_timeout_s > 0):
+        if not (0 < self.period_s <= 1 and 0 < self.deadline_s <= 10 and self.heartbeat_timeout_s > 0
+                and self.lockstep_patience_s > 0):
             raise ValueError(f"invalid bus timing {self}")
+
+    @property
+    def liveness_s(self) -> float:
+        """How old a node's last heartbeat may be for it to count as present."""
+        return self.heartbeat_timeout_s if self.realtime else max(self.heartbeat_timeout_s, self.lockstep_patience_s)
+
+    @property
+    def tpdo_wait_s(self) -> float:
+        """How long a cycle waits for its TPDOs before they count as missing."""
+        return self.deadline_s if self.realtime else max(self.deadline_s, self.lockstep_patience_s)
 
 
 @dataclass(frozen=True)
@@ -122,6 +146,8 @@ class AgentBus:
         rpdos, sizes = [], {}
         for dev in self.devices:
             node = canopen.RemoteNode(dev.node_id, object_dictionary(dev))
+            if not self.timing.realtime:  # a stalled simulator answers late (the module doc)
+                node.sdo.RESPONSE_TIMEOUT = max(node.sdo.RESPONSE_TIMEOUT, self.timing.lockstep_patience_s)
             net.add_node(node)
             node.tpdo.read(from_od=True)
             node.rpdo.read(from_od=True)
@@ -210,11 +236,11 @@ class AgentBus:
     def present(self, device: Device | str) -> bool:
         """Whether the device's heartbeat is fresh."""
         age = self.heartbeat_ages()[_name(device)]
-        return age is not None and age <= self.timing.heartbeat_timeout_s
+        return age is not None and age <= self.timing.liveness_s
 
     def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
         """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
-        now, timeout = time.monotonic(), self.timing.heartbeat_timeout_s
+        now, timeout = time.monotonic(), self.timing.liveness_s
         if devices is CYCLIC and now - self._cyclic_oldest <= timeout:
             return  # every cyclic node heard within the timeout (the oldest was)
         names = _CYCLIC_NAMES if devices is CYCLIC else [_name(dev) for dev in devices]
@@ -323,12 +349,21 @@ class AgentBus:
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
-        received, missing = tpdos.wait(t0 + self.timing.deadline_s)  # type: ignore[union-attr]
+        timing = self.timing
+        received, missing = tpdos.wait(t0 + timing.deadline_s, give_up=timing.realtime)  # type: ignore[union-attr]
+        silent = ()
+        if missing and not timing.realtime:  # lock-step: late, or gone? wait generously
+            ages = self.heartbeat_ages()
+            silent = [d for d in sorted({self._tpdo_device[c] for c in missing})
+                      if ages[d] is None or ages[d] > timing.heartbeat_timeout_s]
+            received, missing = tpdos.wait(t0 + timing.tpdo_wait_s)  # type: ignore[union-attr]
         latency = time.perf_counter() - t0
         if missing:
             self._raise_if_bus_down()
+            if silent:  # its heartbeat had stopped too when the TPDO was due
+                raise HeartbeatLost(silent[0], self.heartbeat_ages()[silent[0]], timing.heartbeat_timeout_s)
             names = tuple(sorted(f"{self._tpdo_device[c]}:0x{c:03X}" for c in missing))
-            raise PdoTimeout(cycle, names, self.timing.deadline_s)
+            raise PdoTimeout(cycle, names, timing.tpdo_wait_s)
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
         if self._decoder is None:

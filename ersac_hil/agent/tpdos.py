@@ -87,10 +87,12 @@ class TpdoCollector:
             self._pending.update(self._sizes)
             self._frames.clear()
 
-    def wait(self, deadline: float) -> tuple[Mapping[int, bytes | bytearray], frozenset[int] | set[int]]:
+    def wait(self, deadline: float, give_up: bool = True
+             ) -> tuple[Mapping[int, bytes | bytearray], frozenset[int] | set[int]]:
         """Until every expected TPDO is in or ``time.perf_counter()`` passes ``deadline``:
         the data of each frame by COB-ID (valid until the next ``expect``) and the COB-IDs
-        still missing (none pending afterwards)."""
+        still missing (none pending afterwards, unless ``give_up`` is false: then the missing
+        ones stay expected and a later ``wait`` may still get them)."""
         if not self._sizes:
             return {}, _NONE_MISSING
         if self._arrived.acquire(timeout=max(0.0, deadline - time.perf_counter())):
@@ -100,5 +102,6 @@ class TpdoCollector:
                 self._arrived.acquire(blocking=False)
                 return self._frames, _NONE_MISSING
             missing = set(self._pending)
-            self._pending.clear()
+            if give_up:
+                self._pending.clear()
             return self._frames, missing

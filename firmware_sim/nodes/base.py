@@ -6,7 +6,8 @@ consumer and sends no boot-up after an NMT reset): EDS value-range checks on SDO
 as application state and applied at the next SYNC, TPDOs sampled from that state and sent
 after each SYNC, a heartbeat producer on our own timer (python-can-remote's periodic tasks
 cannot change data), boot-up after an NMT reset, and a consumer-heartbeat watchdog on the
-agent (0x1016) that puts the node in its safe state with EMCY 0x8130.
+agent (0x1016) that puts the node in its safe state with EMCY 0x8130 (in lock-step the
+agent's silence also counts in SYNC periods: ``lockstep_period_s``).
 
 What a device *does* lives in a ``NodeApplication`` (the simulator's controllers; or
 ``StaticApplication``, the minimal reference behaviour the conformance suite also runs on).
@@ -30,6 +31,7 @@ from canopen.sdo import SdoAbortedError
 
 from protocol.can import cobid
 from protocol.can.devices import AGENT_NODE_ID, Device, object_dictionary
+from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.nmt import INITIALISING, OPERATIONAL, PRE_OPERATIONAL
 from protocol.can.objects import EMCY_REGISTER, EmcyCode, Index, Status
 from protocol.can.pdo import pdo_maps, pdo_struct
@@ -151,7 +153,8 @@ class SlaveNode(canopen.LocalNode):
     TPDOs of all its nodes from one sample).
     """
 
-    def __init__(self, device: Device, app: NodeApplication | None = None, *, own_sync: bool = True) -> None:
+    def __init__(self, device: Device, app: NodeApplication | None = None, *, own_sync: bool = True,
+                 lockstep_period_s: float | None = None) -> None:
         super().__init__(device.node_id, object_dictionary(device))
         self.device = device
         self.app = app or StaticApplication()
@@ -166,6 +169,8 @@ class SlaveNode(canopen.LocalNode):
         self._watchdog: threading.Thread | None = None
         self._agent_last_hb: float | None = None
         self._hb_lost = False
+        self._lockstep_period_s = lockstep_period_s
+        self._syncs_since_hb = 0
         self.sync_count = 0
         self._layouts: list[TpdoLayout] = []
         self._rpdo_handlers: list[tuple[int, object]] = []
@@ -233,6 +238,7 @@ class SlaveNode(canopen.LocalNode):
                 self._values.clear()
                 self.app.on_reset()
             self._agent_last_hb = None
+            self._syncs_since_hb = 0
             self._hb_lost = False
         self._boot()
 
@@ -373,6 +379,22 @@ class SlaveNode(canopen.LocalNode):
     # -- heartbeat producer and consumer ---------------------------------------------------
     def _on_agent_heartbeat(self, can_id, data, timestamp) -> None:
         self._agent_last_hb = time.monotonic()
+        self._syncs_since_hb = 0
+
+    def agent_sync(self) -> None:
+        """A SYNC of the agent arrived (lock-step: the plant's clock ticked once)."""
+        self._syncs_since_hb += 1
+
+    def _agent_silent(self, now: float, timeout: float) -> bool:
+        """The agent's heartbeat has been silent for longer than ``timeout`` on the wall clock;
+        in lock-step (``lockstep_period_s``) also for ``timeout`` in SYNC periods, or else for
+        ``LOCKSTEP_PATIENCE_S``: a stalled agent sends no SYNC either, and a plant in
+        lock-step does not move without one (``protocol.can.lockstep``)."""
+        last = self._agent_last_hb
+        if last is None or now - last <= timeout:
+            return False
+        return (self._lockstep_period_s is None or self._syncs_since_hb * self._lockstep_period_s > timeout
+                or now - last > max(timeout, LOCKSTEP_PATIENCE_S))
 
     def consumer_timeout(self) -> float:
         """Seconds of agent silence tolerated (0x1016 sub1, 0 = not monitored)."""
@@ -397,7 +419,7 @@ class SlaveNode(canopen.LocalNode):
                 next_hb = now + period
             timeout = self.consumer_timeout()
             last = self._agent_last_hb
-            if timeout and last is not None and not self._hb_lost and now - last > timeout:
+            if timeout and not self._hb_lost and self._agent_silent(now, timeout):
                 self._hb_lost = True
                 log.warning("node %#x: agent heartbeat lost (%.0f ms), safe state", self.id,
                             1000 * (now - last))

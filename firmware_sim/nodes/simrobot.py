@@ -3,7 +3,9 @@
 Lock-step (default): each SYNC applies the RPDOs received since the previous SYNC, advances
 exactly one control period of physics, sends the failure EMCYs of that period, then every
 node samples and sends its synchronous TPDOs. Real-time: a physics thread steps on the wall
-clock (overruns counted) and SYNC only applies commands and samples.
+clock (overruns counted) and SYNC only applies commands and samples. In lock-step the
+controllers' watchdog on the agent's heartbeat counts SYNC periods as well as the wall clock
+(``SlaveNode``'s ``lockstep_period_s``): an agent a loaded machine stalls is not lost.
 """
 from __future__ import annotations
 
@@ -57,7 +59,8 @@ class SimulatedRobot:
         self.network = open_network(bus_config)
         self.nodes: dict[str, SlaveNode] = {}
         for d in devices:
-            self.nodes[d.name] = SlaveNode(d, APPS[d.name](self, d), own_sync=False)
+            self.nodes[d.name] = SlaveNode(d, APPS[d.name](self, d), own_sync=False,
+                                           lockstep_period_s=None if realtime else control_period)
         for node in self.nodes.values():
             node.connect(self.network)
         self._sampler = TpdoSampler(tuple(self.nodes.values()))
@@ -92,6 +95,7 @@ class SimulatedRobot:
         with self.lock:
             for node in self.nodes.values():
                 node.apply_commands()
+                node.agent_sync()
             if not self.realtime:
                 self._step()
             frames: list[tuple[int, bytes]] = []
