@@ -136,10 +136,16 @@ class _Episode:
 
 
 class EpisodeRunner:
-    """Runs episodes on an open ``AgentBus`` (one at a time; the caller serialises)."""
+    """Runs episodes on an open ``AgentBus`` (one at a time; the caller serialises).
+
+    ``observe``, if given, is called with each cycle's telemetry on the SYNC loop's thread right
+    after the cycle (the ROS 2 bridge and the MCAP recorder hang on it): it must only hand the
+    sample on, never block.
+    """
 
     def __init__(self, bus: AgentBus, config: EpisodeConfig = EpisodeConfig(),
-                 go: Callable[[float], bool] | None = None, safety: Safety | None = None) -> None:
+                 go: Callable[[float], bool] | None = None, safety: Safety | None = None,
+                 observe: Callable[[Telemetry], None] | None = None) -> None:
         """``go(timeout) -> bool``: the go signal without a test bench (default: ``safety``'s,
         when given, else none: such an episode is aborted). ``safety``: the e-stop, go and
         pacing of the agent (default: no e-stop source, pacing ``auto``, or ``realtime`` if
@@ -149,6 +155,7 @@ class EpisodeRunner:
         if go is None and safety is not None:
             go = lambda timeout: self.safety.wait_go(timeout, self.stop_requested)  # noqa: E731
         self.go = go
+        self.observe = observe
         self.stop_requested = threading.Event()
         self._designs: dict[str, BalanceDesign] = {}
         self.last: LastEpisode | None = None
@@ -256,6 +263,7 @@ class EpisodeRunner:
         beginning: _BesideTheLoop | None = None
         estop, limits = self.safety.estop, self.config.limits
         try:
+            observe = self.observe
             if estop.is_set():
                 return self._quick_stop(episode, commands)
             sent = self._clamped(episode, commands)
@@ -263,6 +271,8 @@ class EpisodeRunner:
             ctl.start(tel)
             episode.samples.append(tel)
             episode.commands.append(sent)
+            if observe is not None:
+                observe(tel)
             if bus.timing.realtime:
                 first, held = tel, commands
                 beginning = _BesideTheLoop(lambda: task.begin(bus, plan.setup, first, held))
@@ -287,6 +297,8 @@ class EpisodeRunner:
                 tel = bus.cycle(sent)
                 episode.samples.append(tel)
                 episode.commands.append(sent)
+                if observe is not None:
+                    observe(tel)
                 why = end(tel, len(episode.samples), episode.failures)
                 if why is not None:
                     episode.detail = why
