@@ -29,6 +29,8 @@ def register(subparsers) -> None:
     p.add_argument("--record-series", dest="record_series", metavar="DIR",
                    help="write each episode's per-cycle time series to DIR/<episode_id>.npz "
                         "(after its reply; ersac-hil report draws them)")
+    from ersac_hil.ros2 import options as ros2
+    ros2.add_arguments(p)
     pacing = p.add_mutually_exclusive_group()
     pacing.add_argument("--realtime", action="store_true",
                         help="pace SYNC by the wall clock (the default on every bus that is not a "
@@ -63,6 +65,8 @@ def _validate(args: argparse.Namespace) -> None:
         if why is not None:
             raise UsageError(lockstep_refusal(bus, why))
     usable_bus(args.bus_interface, args.bus_channel, args.bitrate, args.bus_kwargs)
+    from ersac_hil.ros2.options import from_args
+    from_args(args)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -70,6 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     from ersac_hil.agent.safety import physical_bus
     from ersac_hil.agent.service import AgentConfig, AgentService
     from ersac_hil.lifecycle import serve
+    from ersac_hil.ros2.options import from_args as ros2_options
     from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
 
     try:
@@ -88,6 +93,7 @@ def _run(args: argparse.Namespace) -> int:
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
                              record_can=args.record_can, record_format=args.record_format,
                              record_series=args.record_series,
+                             ros2=ros2_options(args), record=args.record,
                              timing=timing, pacing=pacing)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),

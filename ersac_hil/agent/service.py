@@ -39,6 +39,7 @@ from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
 from ersac_hil.agent.safety import Safety, physical_bus
 from ersac_hil.agent.trace import CanRecorder
+from ersac_hil.ros2.options import Ros2Options
 from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
 from protocol.can.devices import TESTBENCH
@@ -62,6 +63,8 @@ class AgentConfig:
             ``record_can/<episode_id>.<record_format>`` (``blf`` or ``asc``; ``agent.trace``).
         record_series: write each episode's per-cycle time series to
             ``record_series/<episode_id>.npz`` after its reply (``agent.series``).
+        ros2: publish for ROS 2 over rmw_zenoh's key space (``ersac_hil.ros2``), or None.
+        record: write each episode as ``record/<episode_id>.mcap`` (``ersac_hil.ros2.recorder``).
         episode: what episodes do (policies, LQR weights, cost weights, limits).
         pacing: ``auto`` (real time unless the bus is a simulated bench; ``timing.realtime``
             forces real time), ``realtime`` or ``lockstep`` (``agent.safety.pacing``).
@@ -76,6 +79,8 @@ class AgentConfig:
     record_can: str | None = None
     record_format: str = "blf"
     record_series: str | None = None
+    ros2: Ros2Options | None = None
+    record: str | None = None
     prefix: str = "ersac"
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
@@ -104,6 +109,7 @@ class AgentService:
         self.safety = Safety(requested)
         self._running = False
         self.recorder: CanRecorder | None = None
+        self.feed = None  # ersac_hil.ros2.feed.Feed: the ROS 2 node and MCAP episodes
         self.episodes = 0
         self.refused = 0
 
@@ -122,6 +128,10 @@ class AgentService:
         self._worker = threading.Thread(target=self._work_loop, name="agent-episodes", daemon=True)
         self._worker.start()
         s = self.session
+        if cfg.ros2 is not None or cfg.record is not None:
+            from ersac_hil.ros2.feed import Feed  # rosbags and mcap only when asked for
+            self.feed = Feed.for_agent(cfg, s, self.bus)
+            self.runner.observe = self.feed.observe
         self._publisher = s.declare_publisher(self.keys.episode_done)
         self._entities = [
             self._publisher,
@@ -149,6 +159,9 @@ class AgentService:
             except Exception as exc:  # session may be half closed already
                 log.debug("undeclare: %s", exc)
         self._entities = []
+        if self.feed is not None:
+            self.feed.stop()
+            self.feed = None
         if self.session is not None:
             self.session.close()
             self.session = None
@@ -223,6 +236,9 @@ class AgentService:
     def _run_episode(self, plan) -> EpisodeResult | ErrorReply:
         if self.recorder is not None:
             self.recorder.begin(plan.request.episode_id)
+        if self.feed is not None:
+            self.feed.begin(plan.request, self.bus.timing.period_s, self.bus.emcy_count)  # type: ignore[union-attr]
+        result: EpisodeResult | None = None
         try:
             result = self.runner.run(plan)  # type: ignore[union-attr]
         except RequestRefused as exc:
@@ -232,8 +248,9 @@ class AgentService:
             return ErrorReply.from_exception(exc, "internal")
         finally:
             trace = self.recorder.end() if self.recorder is not None else ""
-        if trace:
-            result = msgspec.structs.replace(result, trace=trace)
+            mcap = self.feed.end(result) if self.feed is not None else ""
+        if trace or mcap:
+            result = msgspec.structs.replace(result, trace=trace, mcap=mcap)
         self.episodes += 1
         log.info("episode %s %s: %s cost %s in %.2f s", plan.request.episode_id, plan.request.task,
                  result.status, result.total_cost, result.wall_s)

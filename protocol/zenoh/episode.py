@@ -49,6 +49,8 @@ Failures = Annotated[
 #: A trace file name: an episode id plus a python-can log suffix, or empty.
 TraceName = Annotated[str, Meta(pattern=r"^$|^[A-Za-z0-9][A-Za-z0-9_.:\-]{0,127}\.(blf|asc)$(?!\n)")]
 Robot = Annotated[str, Meta(pattern=anchored(CHUNK_PATTERN))]
+#: An MCAP episode file name: an episode id plus ``.mcap``, or empty.
+McapName = Annotated[str, Meta(pattern=r"^$|^[A-Za-z0-9][A-Za-z0-9_.:\-]{0,127}\.mcap$(?!\n)")]
 
 
 class EpisodeRequest(Message, frozen=True):
@@ -99,10 +101,12 @@ class EpisodeResult(Message, frozen=True):
         trace: file name (no directory) of the episode's CAN trace the agent wrote
             (``agent --record-can DIR``: ``<episode_id>.blf`` or ``.asc``), ``""`` if none.
             Added after the first revision of v1: optional on the wire (absent = ``""``).
+        mcap: file name (no directory) of the episode's MCAP file (``agent --record DIR``:
+            ``<episode_id>.mcap``), ``""`` if none. Optional on the wire like ``trace``.
     """
 
     TYPE: ClassVar[str] = "episode_result"
-    WIRE_OPTIONAL: ClassVar[frozenset[str]] = frozenset({"trace"})
+    WIRE_OPTIONAL: ClassVar[frozenset[str]] = frozenset({"trace", "mcap"})
 
     episode_id: Id
     task: TaskName
@@ -116,6 +120,7 @@ class EpisodeResult(Message, frozen=True):
     fault_counts: dict[Name, Count] = {}
     detail: Text = ""
     trace: TraceName = ""
+    mcap: McapName = ""
 
     def _check(self) -> None:
         ok = self.status == "ok"

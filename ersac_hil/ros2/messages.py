@@ -1,0 +1,204 @@
+"""The agent's telemetry and episodes as ROS 2 Jazzy messages (rosbags' typestore: the message
+classes, their CDR and RIHS01 type hashes; nothing here encodes by hand).
+
+Topics, relative to the node's namespace (``/ubot1`` by default):
+
+=================  =================================  =============================================
+topic              type                               what
+=================  =================================  =============================================
+``joint_states``   ``sensor_msgs/msg/JointState``     every joint (``JOINTS`` order): position [rad],
+                                                      velocity [rad/s], effort [N m] (wheels: motor
+                                                      current x torque constant x gear; other joints
+                                                      NaN: their torque constants are not known)
+``imu``            ``sensor_msgs/msg/Imu``            body pitch as orientation (rotation about +y,
+                                                      x forward, z up), pitch rate as angular
+                                                      velocity y [rad/s], acceleration x/z [m/s^2];
+                                                      covariances 0 (unknown)
+``diagnostics``    ``diagnostic_msgs/msg/             per device its status word (level, set bits),
+                   DiagnosticArray``                  EMCY frames and the episode's fault; on change
+``episode``        ``diagnostic_msgs/msg/             per episode: id, task, theta, status, cost and
+                   DiagnosticStatus``                 cost terms, failures as key/value pairs
+=================  =================================  =============================================
+"""
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from ersac_hil.agent.bus import EmcyEvent
+from ersac_hil.agent.robot import UBOT, RobotParameters
+from ersac_hil.agent.telemetry import JOINTS, STATUS_DEVICES, Telemetry
+from protocol.can.objects import EmcyCode, Status
+from protocol.zenoh import EpisodeRequest, EpisodeResult
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+IMU = "sensor_msgs/msg/Imu"
+DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
+STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
+TOPICS: dict[str, str] = {"joint_states": JOINT_STATE, "imu": IMU, "diagnostics": DIAGNOSTICS,
+                          "episode": STATUS}
+"""Relative topic name -> ROS 2 type of everything the robot publishes."""
+
+CAN_FRAME = "can_msgs/msg/Frame"
+LOG = "foxglove_msgs/msg/Log"
+RECORDED: dict[str, str] = {"can": CAN_FRAME, "events": LOG}
+"""Topics of the MCAP files only: every CAN frame of the episode, and its events (start, EMCY,
+faults, end) as Foxglove's ``foxglove.Log`` in its ROS 2 form."""
+_EXTRA_TYPES = {
+    # the CAN frame of ros2_socketcan / ros2_canopen (not in the Jazzy core typestore)
+    CAN_FRAME: "std_msgs/Header header\nuint32 id\nbool is_rtr\nbool is_extended\nbool is_error\n"
+               "uint8 dlc\nuint8[8] data\n",
+    # foxglove_msgs/msg/Log, the ROS 2 definition of foxglove.Log
+    LOG: "uint8 UNKNOWN=0\nuint8 DEBUG=1\nuint8 INFO=2\nuint8 WARNING=3\nuint8 ERROR=4\nuint8 FATAL=5\n"
+         "builtin_interfaces/Time timestamp\nuint8 level\nstring message\nstring name\nstring file\nuint32 line\n",
+}
+LOG_INFO, LOG_WARN, LOG_ERROR = 2, 3, 4
+
+OK, WARN, ERROR = 0, 1, 2  # DiagnosticStatus levels
+_ERROR_BITS = Status.FAULT | Status.OVER_CURRENT | Status.CABLE_BROKEN | Status.SAFE_STATE
+_WARN_BITS = Status.FALLEN | Status.BOTTLE_DROPPED | Status.CURRENT_LIMITING | Status.POSITION_LIMIT
+
+
+@functools.cache
+def typestore() -> Any:
+    """rosbags' ROS 2 Jazzy typestore, with the two types of the MCAP files that Jazzy's core
+    set lacks (``RECORDED``)."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict = {}
+    for name, text in _EXTRA_TYPES.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+def type_hash(typename: str) -> str:
+    """``RIHS01_<hex>`` of a type (REP-2016), from rosbags."""
+    return typestore().hash_rihs01(typename)
+
+
+def msgdef(typename: str) -> str:
+    """The ``ros2msg`` schema text of a type (MCAP's ROS 2 profile)."""
+    return typestore().generate_msgdef(typename, ros_version=2)[0]
+
+
+def serialize(message: Any, typename: str) -> bytes:
+    """CDR (little endian, with its 4-byte encapsulation header)."""
+    return bytes(typestore().serialize_cdr(message, typename))
+
+
+def deserialize(data: bytes, typename: str) -> Any:
+    return typestore().deserialize_cdr(data, typename)
+
+
+@functools.cache
+def _t(name: str) -> Any:
+    """The message class of ``name`` (the typestore builds its ``types`` table per access)."""
+    return typestore().types[name]
+
+
+def header(stamp_ns: int, frame_id: str = "") -> Any:
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    return _t("std_msgs/msg/Header")(_t("builtin_interfaces/msg/Time")(sec, nsec), frame_id)
+
+
+def torque_per_amp(robot: RobotParameters = UBOT) -> np.ndarray:
+    """Joint torque per motor ampere, ``JOINTS`` order (NaN where unknown)."""
+    out = np.full(len(JOINTS), math.nan)
+    out[:2] = robot.wheel_kt * robot.wheel_gear
+    return out
+
+
+def joint_state(tel: Telemetry, stamp_ns: int, per_amp: np.ndarray) -> Any:
+    return _t(JOINT_STATE)(header(stamp_ns, "base_link"), list(JOINTS),
+                           np.array(tel.position, dtype=np.float64), np.array(tel.velocity, dtype=np.float64),
+                           np.array(tel.current, dtype=np.float64) * per_amp)
+
+
+def imu(tel: Telemetry, stamp_ns: int) -> Any:
+    v3, zeros = _t("geometry_msgs/msg/Vector3"), np.zeros(9, dtype=np.float64)
+    half = tel.pitch / 2.0
+    q = _t("geometry_msgs/msg/Quaternion")(0.0, math.sin(half), 0.0, math.cos(half))
+    return _t(IMU)(header(stamp_ns, "imu_link"), q, zeros, v3(0.0, tel.pitch_rate, 0.0), zeros,
+                   v3(tel.acc_x, 0.0, tel.acc_z), zeros)
+
+
+def _kv(pairs: Iterable[tuple[str, object]]) -> list:
+    kv = _t("diagnostic_msgs/msg/KeyValue")
+    return [kv(k, str(v)) for k, v in pairs]
+
+
+def _status(level: int, name: str, message: str, hardware_id: str, values: Iterable[tuple[str, object]]) -> Any:
+    return _t(STATUS)(level, name, message, hardware_id, _kv(values))
+
+
+def status_level(word: int) -> int:
+    return ERROR if word & _ERROR_BITS else WARN if word & _WARN_BITS else OK
+
+
+def device_statuses(robot: str, tel: Telemetry) -> list:
+    """One DiagnosticStatus per device of the status words."""
+    out = []
+    for device, word in zip(STATUS_DEVICES, tel.status):
+        bits = [b.name for b in Status if word & b]
+        out.append(_status(status_level(word), f"{robot}/{device}", ", ".join(bits) or "ok", device,
+                           [("status_word", f"0x{word:04X}"), ("cycle", tel.cycle)]))
+    return out
+
+
+def emcy_status(robot: str, ev: EmcyEvent) -> Any:
+    try:
+        name = EmcyCode(ev.code).name
+    except ValueError:
+        name = f"0x{ev.code:04X}"
+    level = OK if ev.code == EmcyCode.NO_ERROR else ERROR
+    return _status(level, f"{robot}/emcy", f"EMCY {name} from {ev.device}", ev.device,
+                   [("code", f"0x{ev.code:04X}"), ("register", f"0x{ev.register:02X}"),
+                    ("data", ev.data.hex()), ("cycle", ev.cycle)])
+
+
+def diagnostics(stamp_ns: int, statuses: Sequence[Any]) -> Any:
+    return _t(DIAGNOSTICS)(header(stamp_ns), list(statuses))
+
+
+def episode_status(robot: str, request: EpisodeRequest, result: EpisodeResult | None,
+                   fault: str = "") -> Any:
+    """The per-episode message: name ``<robot>/episode``, hardware_id the episode id; values
+    ``task``, ``seed``, ``theta_<i>``, then (when finished) ``status``, ``total_cost``,
+    ``cost.<term>``, ``failure.<flag>``, ``duration_s``, ``trace``; message the status.
+    Level OK for an ``ok`` episode without failures, WARN with failures, ERROR otherwise."""
+    values: list[tuple[str, object]] = [("task", request.task), ("seed", request.seed)]
+    values += [(f"theta_{i}", repr(float(x))) for i, x in enumerate(request.theta)]
+    if result is None:
+        return _status(OK, f"{robot}/episode", "started", request.episode_id, values)
+    values += [("status", result.status),
+               ("total_cost", "" if result.total_cost is None else repr(float(result.total_cost)))]
+    values += [(f"cost.{k}", repr(float(v))) for k, v in sorted(result.cost_terms.items())]
+    values += [(f"failure.{k}", str(v).lower()) for k, v in sorted(result.failures.items())]
+    values += [("duration_s", repr(float(result.duration_s))), ("trace", result.trace)]
+    level = ERROR if not result.ok else WARN if any(result.failures.values()) else OK
+    return _status(level, f"{robot}/episode", fault or result.status, request.episode_id, values)
+
+
+def fault_status(robot: str, result: EpisodeResult) -> Any:
+    """The episode's fault (a result that is not ``ok``) as a diagnostic."""
+    counts = sorted((k, v) for k, v in result.fault_counts.items() if v)
+    return _status(ERROR, f"{robot}/fault", result.detail or result.status, result.episode_id,
+                   [("status", result.status)] + counts)
+
+
+def can_frame(timestamp_s: float, arbitration_id: int, data: bytes, is_extended: bool = False,
+              is_rtr: bool = False, is_error: bool = False) -> Any:
+    payload = np.zeros(8, dtype=np.uint8)
+    payload[:len(data)] = np.frombuffer(bytes(data[:8]), dtype=np.uint8)
+    return _t(CAN_FRAME)(header(round(timestamp_s * 1e9), "can"), arbitration_id, is_rtr, is_extended,
+                         is_error, len(data), payload)
+
+
+def log(stamp_ns: int, level: int, message: str, name: str) -> Any:
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    return _t(LOG)(_t("builtin_interfaces/msg/Time")(sec, nsec), level, message, name, "", 0)

@@ -1,0 +1,163 @@
+"""The agent's ROS 2 bridge and MCAP episodes during real simulated episodes: real agent
+service, simulated robot on a virtual bus, real Zenoh router, a zenoh-python subscriber on the
+documented keys; every message decoded with rosbags' Jazzy typestore; the MCAP files read with
+mcap + mcap-ros2-support and with rosbags."""
+from __future__ import annotations
+
+import uuid
+from collections import defaultdict
+
+import numpy as np
+import pytest
+import zenoh
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from ersac_hil.agent.service import AgentConfig, AgentService
+from ersac_hil.agent.telemetry import JOINTS
+from ersac_hil.ros2 import names
+from ersac_hil.ros2.options import Ros2Options
+from ersac_hil.zenoh_session import EmbeddedRouter
+from firmware_sim.nodes.simrobot import SimulatedRobot
+from helpers.waiting import wait_until
+from protocol.can.busconfig import BusConfig
+from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
+
+pytestmark = pytest.mark.timeout(240)
+JAZZY = get_typestore(Stores.ROS2_JAZZY)
+DOMAIN = 7
+TOPICS = {"joint_states": "sensor_msgs/msg/JointState", "imu": "sensor_msgs/msg/Imu",
+          "diagnostics": "diagnostic_msgs/msg/DiagnosticArray", "episode": "diagnostic_msgs/msg/DiagnosticStatus"}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """Two bracing episodes with --ros2 --ros-domain 7 --ros-namespace /lab/ubot1 --record;
+    what a subscriber on ``7/**`` and ``@ros2_lv/7/**`` saw, the agent's own telemetry."""
+    record = tmp_path_factory.mktemp("mcap")
+    bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-ros")
+    robot = SimulatedRobot(bus)
+    samples, tokens, telemetry = [], {}, []
+    try:
+        with EmbeddedRouter() as router:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,),
+                                 ros2=Ros2Options(domain=DOMAIN, namespace="/lab/ubot1"), record=str(record))
+            with router.open_client() as session:
+                def on_token(sample):
+                    tokens[str(sample.key_expr)] = sample.kind
+                live = session.liveliness().declare_subscriber("@ros2_lv/7/**", on_token, history=True)
+                sub = session.declare_subscriber(f"{DOMAIN}/**", lambda s: samples.append(
+                    (str(s.key_expr), s.payload.to_bytes(), None if s.attachment is None else s.attachment.to_bytes())))
+                with AgentService(config) as agent:
+                    hook = agent.runner.observe
+                    agent.runner.observe = lambda tel: (telemetry.append(tel), hook(tel))
+                    wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                    wait_until(lambda: len(tokens) == 1 + len(TOPICS), what="the node's and publishers' tokens")
+                    replies = []
+                    for eid, theta in (("ep-r1", 0.3), ("ep-r2", 0.5)):
+                        request = EpisodeRequest(eid, "bracing", (theta,), 5)
+                        replies += [EpisodeResult.from_json(r.ok.payload) for r in
+                                    session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+                    n = sum(round(r.telemetry["n_cycles"]) for r in replies)
+                    wait_until(lambda: sum(k.split("/")[3] == "joint_states" for k, _, _ in samples) >= n,
+                               what="every joint state")
+                    dropped = agent.feed.dropped
+                wait_until(lambda: all(kind == zenoh.SampleKind.DELETE for kind in tokens.values()), what="tokens withdrawn")
+                sub.undeclare()
+                live.undeclare()
+    finally:
+        robot.close()
+    return dict(samples=samples, tokens=tokens, replies=replies, telemetry=telemetry, record=record,
+                dropped=dropped)
+
+
+def test_every_sample_is_on_a_documented_key_with_rosbags_hash_and_decodes(run):
+    by_topic = defaultdict(list)
+    for key, payload, _ in run["samples"]:
+        domain, ns1, ns2, topic, dds, type_hash = key.split("/")
+        assert (int(domain), ns1, ns2) == (DOMAIN, "lab", "ubot1")
+        typename = names.ros_type(dds)
+        assert typename == TOPICS[topic]
+        assert type_hash == JAZZY.hash_rihs01(typename)
+        by_topic[topic].append(JAZZY.deserialize_cdr(payload, typename))
+    assert set(by_topic) == set(TOPICS)
+    assert all(list(m.name) == list(JOINTS) for m in by_topic["joint_states"])
+    episodes = [m for m in by_topic["episode"] if m.message != "started"]
+    assert [m.hardware_id for m in episodes] == ["ep-r1", "ep-r2"]
+    for msg, result, theta in zip(episodes, run["replies"], (0.3, 0.5)):
+        values = {kv.key: kv.value for kv in msg.values}
+        assert (values["status"], values["task"], float(values["theta_0"])) == (result.status, "bracing", theta)
+        if result.ok:
+            assert float(values["total_cost"]) == result.total_cost
+            assert {k[5:] for k in values if k.startswith("cost.")} == set(result.cost_terms)
+    assert any(s.name == "ubot-ros/wheels" for m in by_topic["diagnostics"] for s in m.status)
+
+
+def test_the_joint_states_are_the_agents_telemetry(run):
+    assert run["dropped"] == 0
+    states = [JAZZY.deserialize_cdr(p, TOPICS["joint_states"]) for k, p, _ in run["samples"]
+              if k.split("/")[3] == "joint_states"]
+    assert len(states) == len(run["telemetry"])
+    for msg, tel in zip(states, run["telemetry"]):
+        assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
+
+
+def test_attachments_carry_increasing_sequence_numbers_and_stamps(run):
+    per_key = defaultdict(list)
+    for key, _, attachment in run["samples"]:
+        assert attachment is not None and len(attachment) == names.ATTACHMENT_SIZE
+        per_key[key].append(names.parse_attachment(attachment))
+    gids = set()
+    for key, atts in per_key.items():
+        seqs, stamps = [a[0] for a in atts], [a[1] for a in atts]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and seqs[0] == 1, key
+        assert all(b > a for a, b in zip(stamps, stamps[1:])), key
+        assert len({a[2] for a in atts}) == 1, key
+        gids.add(atts[0][2])
+    assert len(gids) == len(per_key)  # one GID per publisher
+
+
+def test_the_tokens_parse_and_name_the_published_keys(run):
+    parsed = [names.parse_token(k) for k in run["tokens"]]
+    nodes = [t for t in parsed if t.kind == "NN"]
+    assert [(n.domain, n.namespace, n.node) for n in nodes] == [(DOMAIN, "/lab/ubot1", "ersac_agent")]
+    pubs = {t.topic: t for t in parsed if t.kind == "MP"}
+    assert set(pubs) == {f"/lab/ubot1/{t}" for t in TOPICS}
+    keys = {k for k, _, _ in run["samples"]}
+    for topic, t in pubs.items():
+        assert t.zid == nodes[0].zid and t.node_id == nodes[0].node_id
+        assert f"{DOMAIN}{topic}/{t.type_name}/{t.type_hash}" in keys
+    assert len({t.entity_id for t in pubs.values()}) == len(pubs)
+
+
+def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
+    replies, record = run["replies"], run["record"]
+    assert [r.mcap for r in replies] == ["ep-r1.mcap", "ep-r2.mcap"]
+    n0 = round(replies[0].telemetry["n_cycles"])
+    per_episode = [run["telemetry"][:n0], run["telemetry"][n0:]]
+    for result, telemetry in zip(replies, per_episode):
+        path = record / result.mcap
+        with open(path, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            assert reader.get_header().profile == "ros2"
+            got = defaultdict(list)
+            for schema, channel, message, decoded in reader.iter_decoded_messages():
+                assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+                got[channel.topic].append(decoded)
+        states = got["/lab/ubot1/joint_states"]
+        assert len(states) == len(telemetry) == round(result.telemetry["n_cycles"])
+        for msg, tel in zip(states, telemetry):
+            assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
+        assert len(got["/lab/ubot1/imu"]) == len(telemetry)
+        assert len(got["/lab/ubot1/can"]) > 10 * len(telemetry)  # SYNC, RPDOs, TPDOs every cycle
+        events = [e.message for e in got["/lab/ubot1/events"]]
+        assert "started" in events[0] and "ended" in events[-1]
+        with AnyReader([path]) as bag:
+            conns = {c.topic: c for c in bag.connections}
+            assert conns["/lab/ubot1/joint_states"].msgtype == "sensor_msgs/msg/JointState"
+            js = [bag.deserialize(raw, c.msgtype) for c, _, raw in
+                  bag.messages(connections=[conns["/lab/ubot1/joint_states"]])]
+            assert np.array_equal([m.position for m in js], [t.position for t in telemetry])
