@@ -39,6 +39,7 @@ from .plant import (
     ImuNoise,
     ImuSample,
     MotorBank,
+    MotorParams,
     Physics,
     read_motor_params,
 )
@@ -186,6 +187,7 @@ class Simulator:
         self._current = [0.0] * 7
         self._voltage = [0.0] * 7
         self._boards: dict[str, MotorController] = {}
+        self._drives: dict[str, MotorController] = {}
 
     # ---- episode --------------------------------------------------------------------------
     @property
@@ -221,7 +223,7 @@ class Simulator:
             fw = rig.firmware
             self._boards = {"wheels": WheelController(fw),
                             **{b: JointController(b, fw) for b in BOARDS if b != "wheels"}}
-        for board in self._boards.values():
+        for board in (*self._boards.values(), *self._drives.values()):
             board.bind(rig.firmware)
         self.balance_free = self._balance_free
         self._events = ()
@@ -378,6 +380,26 @@ class Simulator:
             return self._boards[name]
         except KeyError:
             raise UnknownAxisError(f"unknown board {name!r}; boards are {tuple(BOARDS)}") from None
+
+    def motor(self, axis: str) -> MotorParams:
+        """Motor and gearbox constants of ``axis`` (as compiled from the model)."""
+        return self._require().motors.params[axis]
+
+    def axis_controller(self, axis: str) -> MotorController:
+        """The controller of one axis alone (a one-axis drive: ``WheelController`` of a wheel,
+        ``JointController`` of an impedance axis), the same object for the simulator's whole
+        life; it shares the firmware with the boards."""
+        self._require()
+        drive = self._drives.get(axis)
+        if drive is None:
+            board = _BOARD_OF_AXIS.get(axis)
+            if board is None:
+                raise UnknownAxisError(f"unknown axis {axis!r}; axes are {AXES}")
+            fw = self._require().firmware
+            drive = (WheelController(fw, (axis,)) if board == "wheels"
+                     else JointController(board, fw, (axis,)))
+            self._drives[axis] = drive
+        return drive
 
     def _joint_board(self, axis: str) -> JointController:
         board = _BOARD_OF_AXIS.get(axis)

@@ -67,15 +67,19 @@ class AxisStatus:
 
 
 class MotorController:
-    """A board driving ``axes`` through the shared :class:`Firmware`.
+    """A board driving ``axes`` through the shared :class:`Firmware` (default: every axis of
+    board ``name``; a one-axis drive is the board's controller of one of them).
 
-    The simulator keeps one object per board for its whole life and re-binds it to the
-    firmware of the current episode at every reset (power-on state: no stored spline).
+    The simulator keeps one object per board (and per one-axis drive) for its whole life and
+    re-binds it to the firmware of the current episode at every reset (power-on state: no
+    stored spline).
     """
 
-    def __init__(self, name: str, firmware: Firmware) -> None:
+    def __init__(self, name: str, firmware: Firmware, axes: tuple[str, ...] | None = None) -> None:
         self.name = name
-        self.axes = BOARDS[name]
+        self.axes = BOARDS[name] if axes is None else axes
+        if not set(self.axes) <= set(BOARDS[name]):
+            raise UnknownAxisError(f"board {name!r} has no axes {self.axes}; it has {BOARDS[name]}")
         self._idx = np.array([AXES.index(a) for a in self.axes])
         self.bind(firmware)
 
@@ -145,14 +149,21 @@ class MotorController:
 class WheelController(MotorController):
     """The two wheel axes in torque (current) mode."""
 
-    def __init__(self, firmware: Firmware) -> None:
-        super().__init__("wheels", firmware)
+    def __init__(self, firmware: Firmware, axes: tuple[str, ...] | None = None) -> None:
+        super().__init__("wheels", firmware, axes)
 
     def set_torque(self, left: float, right: float) -> None:
         """Joint-side torque commands (N m), positive drives forward. A cyclic command: the
         driver delivers at most its current limit (status: current limiting); only
         non-finite values are refused."""
         self._fw.set_wheel_torque(_finite("wheel_left.torque", left), _finite("wheel_right.torque", right))
+
+    def set_axis_torque(self, axis: str, torque: float) -> None:
+        """The torque command of one wheel (N m), the other's unchanged (a one-axis drive)."""
+        i = self._axis(axis)
+        left, right = (float(t) for t in self._fw.torque_cmd[:2])
+        value = _finite(f"{axis}.torque", torque)
+        self._fw.set_wheel_torque(value if i == 0 else left, value if i == 1 else right)
 
     @property
     def balance_free(self) -> bool:
@@ -179,6 +190,11 @@ class JointController(MotorController):
 
     def setpoint(self, axis: str) -> float:
         return float(self._fw.q_ref[self._axis(axis)])
+
+    def set_joint_torque(self, axis: str, torque: float) -> None:
+        """A bare torque command (N m) on an impedance axis, until the next setpoint or
+        impedance (``Firmware.set_joint_torque``: its stiffness and damping are replaced)."""
+        self._fw.set_joint_torque(self._axis(axis), _finite(f"{axis}.torque", torque))
 
     def set_impedance(self, axis: str, stiffness: float, damping: float) -> None:
         """K (N m/rad) and D (N m s/rad); both validated before either changes."""

@@ -198,6 +198,29 @@ class Firmware:
         d.ctrl[self._pos_ctrl[k]] = self._gear[i] * clamped
         d.ctrl[self._vel_ctrl[k]] = 0.0
 
+    TORQUE_SPRING = 1.0
+    """N m/rad of the spring ``set_joint_torque`` realises a torque with."""
+
+    def set_joint_torque(self, i: int, torque: float) -> None:
+        """A torque command on impedance axis ``i`` through its driver's PD input (the motor
+        model has no torque input on these axes): no damping, a ``TORQUE_SPRING`` whose rest
+        point lies ``torque / TORQUE_SPRING`` ahead of the present position, unclamped. Placed
+        anew at every command (each SYNC), the torque drifts by TORQUE_SPRING times the motion
+        within a period (0.05 N m at 10 rad/s and 5 ms). Cancels a running spline."""
+        self.cancel_spline(i)
+        k = i - 2
+        g, m, d = self._gear[i], self.physics.model, self.physics.data
+        self.stiffness[i], self.damping[i] = self.TORQUE_SPRING, 0.0
+        on = bool(self.active[i])
+        act = self._imp_act[k]
+        m.actuator_gainprm[act, 4] = self.TORQUE_SPRING / g ** 2 if on else 0.0
+        m.actuator_gainprm[act, 6] = 0.0
+        rest = float(d.qpos[self._qpos[i]]) + torque / self.TORQUE_SPRING
+        self.q_ref[i], self.qd_ref[i] = rest, 0.0
+        self.position_limited[i] = False
+        d.ctrl[self._pos_ctrl[k]] = g * rest
+        d.ctrl[self._vel_ctrl[k]] = 0.0
+
     def start_spline(self, axes: np.ndarray, spline: HermiteSpline) -> None:
         """Start ``spline`` (one column per axis of ``axes``) at the next substep."""
         for i in axes:

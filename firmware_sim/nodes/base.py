@@ -70,6 +70,21 @@ class TpdoLayout:
         return sync_count > 0 and sync_count % self.every == 0
 
 
+@dataclass(frozen=True)
+class EventTpdo:
+    """One event-driven TPDO of a node (transmission type 254/255): sent when its data changes
+    (``SlaveNode.send_event_tpdos``) and at least every ``timer_s`` (0: no timer)."""
+
+    cob_id: int
+    layout: struct.Struct
+    keys: tuple[Key, ...]
+    timer_s: float
+
+
+EVENT_DRIVEN = (254, 255)
+"""Transmission types of event-driven PDOs: an RPDO applied on arrival, a TPDO sent on change."""
+
+
 class NodeApplication:
     """Hooks a device implements. The defaults are the reference (static) behaviour."""
 
@@ -97,6 +112,13 @@ class NodeApplication:
 
     def on_reset(self) -> None:
         """NMT reset node: back to power-on defaults."""
+
+    def on_sync(self) -> None:
+        """At every SYNC on a simulated robot, after the commands applied and before the
+        physics step (only applications that override it are called)."""
+
+    def on_failure(self, code: EmcyCode) -> None:
+        """A plant failure of this device, just before its EMCY ``code`` goes out."""
 
 
 class StaticApplication(NodeApplication):
@@ -173,6 +195,8 @@ class SlaveNode(canopen.LocalNode):
         self._syncs_since_hb = 0
         self.sync_count = 0
         self._layouts: list[TpdoLayout] = []
+        self._events: list[EventTpdo] = []
+        self._event_sent: dict[int, tuple[bytes, float]] = {}
         self._rpdo_handlers: list[tuple[int, object]] = []
         self.app.attach(self)
 
@@ -182,18 +206,26 @@ class SlaveNode(canopen.LocalNode):
         self.tpdo.read(from_od=True)
         self.rpdo.read(from_od=True)
         specs = {(p.direction, p.number): p for p in pdo_maps(self.device)}
-        # cyclic PDOs bypass canopen's per-variable machinery: frames kept whole until SYNC
+        # cyclic PDOs bypass canopen's per-variable machinery: frames kept whole until SYNC;
+        # event-driven RPDOs take effect on arrival
         rpdos = [(pdo_map, specs[("rpdo", number)]) for number, pdo_map in self.rpdo.map.items()
                  if pdo_map.enabled and pdo_map.cob_id]
-        self._inbox = RpdoInbox([spec for _, spec in rpdos])
-        for slot, (pdo_map, _) in enumerate(rpdos):
+        synchronous = [(m, spec) for m, spec in rpdos if m.trans_type not in EVENT_DRIVEN]
+        self._inbox = RpdoInbox([spec for _, spec in synchronous])
+        handlers = [(m.cob_id, self._rpdo_handler(slot)) for slot, (m, _) in enumerate(synchronous)]
+        handlers += [(m.cob_id, self._event_rpdo_handler(spec)) for m, spec in rpdos
+                     if m.trans_type in EVENT_DRIVEN]
+        for pdo_map, _ in rpdos:
             network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
-            handler = self._rpdo_handler(slot)
-            network.subscribe(pdo_map.cob_id, handler)
-            self._rpdo_handlers.append((pdo_map.cob_id, handler))
+        for cob_id, handler in handlers:
+            network.subscribe(cob_id, handler)
+            self._rpdo_handlers.append((cob_id, handler))
         self._layouts = [TpdoLayout(m.cob_id, m.trans_type, pdo_struct(spec), spec.keys, tuple_getter(spec.keys))
                          for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
                          if m.enabled and 1 <= (m.trans_type or 0) <= 240]
+        self._events = [EventTpdo(m.cob_id, pdo_struct(spec), spec.keys, (m.event_timer or 0) / 1000.0)
+                        for n, m in self.tpdo.map.items() for spec in (specs[("tpdo", n)],)
+                        if m.enabled and m.trans_type in EVENT_DRIVEN]
         network.subscribe(cobid.heartbeat(AGENT_NODE_ID), self._on_agent_heartbeat)
         if self.own_sync:
             network.subscribe(cobid.SYNC, self._on_sync)
@@ -246,6 +278,8 @@ class SlaveNode(canopen.LocalNode):
         if self.nmt._state == OPERATIONAL:
             self._hb_lost = False
         self.app.on_nmt_state(self.nmt.state)
+        if self.nmt._state == OPERATIONAL:
+            self.send_event_tpdos(force=True)
 
     # -- application state ---------------------------------------------------------------
     def set_value(self, index: int, subindex: int, raw: int) -> None:
@@ -353,6 +387,43 @@ class SlaveNode(canopen.LocalNode):
         self.apply_commands()
         self.transmit_tpdos()
 
+    def send_event_tpdos(self, force: bool = False) -> None:
+        """Send each event-driven TPDO whose data changed since it was last sent, whose event
+        timer ran out, or every one with ``force`` (only while operational)."""
+        if not self._events or not self.operational or not self.has_network():
+            return
+        now, frames = time.monotonic(), []
+        with self._lock:
+            for tpdo in self._events:
+                data = tpdo.layout.pack(*[int(self.value(*key)) for key in tpdo.keys])
+                last = self._event_sent.get(tpdo.cob_id)
+                if (force or last is None or last[0] != data
+                        or (tpdo.timer_s and now - last[1] >= tpdo.timer_s)):
+                    self._event_sent[tpdo.cob_id] = (data, now)
+                    frames.append((tpdo.cob_id, data))
+        for cob_id, data in frames:
+            try:
+                self.network.send_message(cob_id, data)
+            except Exception as exc:  # bus gone: the owner is shutting us down
+                log.debug("node %#x event TPDO not sent: %s", self.id, exc)
+
+    def _event_rpdo_handler(self, spec):
+        """Receive an event-driven RPDO: its values take effect at once (the application hears
+        of those that changed)."""
+        layout = pdo_struct(spec)
+        keys = spec.keys
+
+        def on_frame(can_id, data, timestamp) -> None:
+            if not self.operational or len(data) < layout.size:
+                return
+            with self._lock:
+                received = tuple(zip(keys, layout.unpack_from(bytes(data))))
+                changed = {key: value for key, value in received if self._values.get(key) != value}
+                self._values.update(received)
+            if changed:
+                self.app.on_commands(changed)
+        return on_frame
+
     def _rpdo_handler(self, slot: int):
         """Receive RPDO ``slot`` of the inbox: its frame kept whole until the SYNC."""
         size, store, lock = self._inbox.sizes[slot], self._inbox.store, self._lock
@@ -417,6 +488,8 @@ class SlaveNode(canopen.LocalNode):
                 except Exception as exc:  # bus gone: the owner is shutting us down
                     log.debug("node %#x heartbeat not sent: %s", self.id, exc)
                 next_hb = now + period
+            if self._events:
+                self.send_event_tpdos()
             timeout = self.consumer_timeout()
             last = self._agent_last_hb
             if timeout and not self._hb_lost and self._agent_silent(now, timeout):

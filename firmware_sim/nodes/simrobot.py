@@ -1,4 +1,5 @@
-"""The simulated robot on the bus: one simulator, six CANopen nodes, SYNC-driven stepping.
+"""The simulated robot on the bus: one simulator, its CANopen nodes (the boards, or one CiA 402
+drive per axis: ``firmware_sim.nodes.cia402``; the IMU and the test bench), SYNC-driven stepping.
 
 Lock-step (default): each SYNC applies the RPDOs received since the previous SYNC, advances
 exactly one control period of physics, sends the failure EMCYs of that period, then every
@@ -12,18 +13,22 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 
-from firmware_sim.nodes.base import SlaveNode
+from firmware_sim.nodes.base import NodeApplication, SlaveNode
+from firmware_sim.nodes.cia402 import DriveApp, DriveCounts, drive_scaling
 from firmware_sim.nodes.devices import APPS, AxisCounts, telemetry_row
 from firmware_sim.nodes.sampler import TpdoSampler
+from firmware_sim.controllers import BOARDS
 from firmware_sim.plant.overrides import PhysicsOverrides
 from firmware_sim.simulator import FailureKind, Simulator
-from protocol.can import cobid
+from protocol.can import cia402, cobid
 from protocol.can.devices import DEVICES, Device
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import EmcyCode, Index
+from protocol.robot import RobotDescription
 
 log = logging.getLogger(__name__)
 
@@ -49,20 +54,38 @@ class SimulatedRobot:
 
     def __init__(self, bus_config: BusConfig, *, seed: int = 0, realtime: bool = False,
                  control_period: float = 0.005, substeps: int = 5,
-                 devices: tuple[Device, ...] = DEVICES, physics: PhysicsOverrides = PhysicsOverrides()) -> None:
+                 devices: tuple[Device, ...] = DEVICES, physics: PhysicsOverrides = PhysicsOverrides(),
+                 encoder_counts: Mapping[str, int] | None = None,
+                 description: RobotDescription | None = None) -> None:
+        """``devices``: the nodes (a CiA 402 node per axis where their profile is ``cia402``);
+        ``encoder_counts``: increments per motor revolution of those drives by joint (default
+        ``cia402.ENCODER_INCREMENTS``); ``description``: both from a robot description."""
+        if description is not None:
+            devices = description.devices
+            encoder_counts = {a.name: a.encoder_counts for a in description.axes if a.encoder_counts}
         self.devices = devices
         self.realtime = realtime
         self.lock = threading.RLock()
         self.stats = RobotStats()
         self.sim = Simulator(control_period, substeps, physics=physics)
         self.sim.reset("idle", seed)
+        drives = [d for d in devices if getattr(d, "profile", "ubot-board") == "cia402"]
+        counts = encoder_counts or {}
+        scalings = {d.joints[0]: drive_scaling(self, d.joints[0], counts.get(d.joints[0], cia402.ENCODER_INCREMENTS))
+                    for d in drives}
+        self._drives = DriveCounts(scalings) if drives else None
+        self._node_of_joint = {j: d.name for d in devices for j in d.joints}
         self.network = open_network(bus_config)
         self.nodes: dict[str, SlaveNode] = {}
         for d in devices:
-            self.nodes[d.name] = SlaveNode(d, APPS[d.name](self, d), own_sync=False,
+            app = (DriveApp(self, d, scalings[d.joints[0]], self._drives) if d in drives
+                   else APPS[d.name](self, d))
+            self.nodes[d.name] = SlaveNode(d, app, own_sync=False,
                                            lockstep_period_s=None if realtime else control_period)
         for node in self.nodes.values():
             node.connect(self.network)
+        self._on_sync_apps = [n.app for n in self.nodes.values()
+                              if type(n.app).on_sync is not NodeApplication.on_sync]
         self._sampler = TpdoSampler(tuple(self.nodes.values()))
         self.network.subscribe(cobid.SYNC, self._on_sync)
         self._stop = threading.Event()
@@ -81,35 +104,50 @@ class SimulatedRobot:
             for name in self._emcy_sources(ev):
                 node = self.nodes.get(name)
                 if node is not None and node.operational:
+                    node.app.on_failure(_EMCY_OF[ev.kind])
                     node.emergency(_EMCY_OF[ev.kind])
 
-    @staticmethod
-    def _emcy_sources(ev) -> tuple[str, ...]:
+    def _emcy_sources(self, ev) -> tuple[str, ...]:
+        boards = ("arm_left", "arm_right")  # bottle dropped: both hands lose their load
         if ev.board:
-            return (ev.board,)
-        if ev.kind == FailureKind.FALLEN:
+            boards = (ev.board,)
+        elif ev.kind == FailureKind.FALLEN:
             return ("imu",)
-        return ("arm_left", "arm_right")  # bottle dropped: both hands lose their load
+        if self._drives is None:
+            return boards
+        if ev.kind == FailureKind.OVER_CURRENT:  # one drive per axis: the axis's own
+            return (self._node_of_joint[ev.axis],)
+        # the arm goes limp (cable) / lets go (bottle): every drive of the arm
+        return tuple(self._node_of_joint[j] for b in boards for j in BOARDS[b] if j in self._node_of_joint)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
         with self.lock:
             for node in self.nodes.values():
                 node.apply_commands()
                 node.agent_sync()
+            for app in self._on_sync_apps:
+                app.on_sync()
             if not self.realtime:
                 self._step()
             frames: list[tuple[int, bytes]] = []
             axes = AxisCounts.sample(self.sim)  # once for every node's TPDOs
-            self._sampler.pack(telemetry_row(axes, self.sim.imu()), axes, frames)
+            self._sampler.pack(self._row(axes), axes, frames)
             send_frames(self.network, frames)
+
+    def _row(self, axes: AxisCounts) -> list[int]:
+        row = telemetry_row(axes, self.sim.imu())
+        if self._drives is not None:  # the drives' counts after the boards'
+            row += self._drives.row(self.sim.axis_values())
+        return row
 
     def axis_counts(self) -> AxisCounts:
         """The raw axis telemetry of the present state."""
         return AxisCounts.sample(self.sim)
 
     def telemetry(self) -> list[int]:
-        """The robot's telemetry row of the present state (``devices.telemetry_row``)."""
-        return telemetry_row(AxisCounts.sample(self.sim), self.sim.imu())
+        """The robot's telemetry row of the present state (``devices.telemetry_row``, then
+        the CiA 402 drives' counts: ``cia402.DriveCounts``)."""
+        return self._row(AxisCounts.sample(self.sim))
 
     def _run_realtime(self) -> None:
         period = self.sim.control_period

@@ -166,14 +166,6 @@ class QuickStopOption(enum.IntEnum):
 QUICK_STOP_DEFAULT = QuickStopOption.QUICK_STOP_STAY
 
 
-class ErrorCode(enum.IntEnum):
-    """0x603F / EMCY codes the simulated drives raise (CiA 402 / CiA 301)."""
-    NO_ERROR = 0x0000
-    HEARTBEAT_LOST = 0x8130      # life guard / heartbeat error
-    OVER_CURRENT = 0x2310
-    CABLE_BROKEN = 0xFF10        # manufacturer: transmission lost (elbow cable)
-
-
 # ---- the objects ---------------------------------------------------------------------------
 _T = DataType
 
@@ -184,7 +176,8 @@ def _o(index: int, name: str, dtype: DataType, access: str = "rw", pdo: bool = F
 
 
 OBJECTS: dict[int, ObjectSpec] = {o.index: o for o in (
-    _o(Index.ERROR_CODE, "Error code", _T.UINT16, "ro", False, meaning="last EMCY code, 0 none"),
+    _o(Index.ERROR_CODE, "Error code", _T.UINT16, "ro", False,
+       meaning="the EMCY code of the present fault (protocol.can.objects.EmcyCode), 0 none"),
     _o(Index.CONTROLWORD, "Controlword", _T.UINT16, "rw", True, meaning="CiA 402 device control"),
     _o(Index.STATUSWORD, "Statusword", _T.UINT16, "ro", True, meaning="CiA 402 power state"),
     _o(Index.QUICK_STOP_OPTION, "Quick stop option code", _T.INT16, "rw", False, 0, 6,

@@ -6,6 +6,7 @@ declare fixtures and are never imported.
 * ``waiting``         - ``wait_until``: poll a condition up to a deadline, fail the test after it
 * ``can_nodes``       - the reference nodes (static CiA 301 nodes from the EDS files), a test-side
                         CANopen master, a frame counter, the SDO barrier, actions at a SYNC
+* ``cia402``          - the simulated CiA 402 robot with a stock ``BaseNode402`` master per drive
 * ``plant``           - balancing the simulated plant without the agent (scenario tests)
 * ``processes``       - end-to-end child processes: output up to a line, stopped, nothing left
 * ``synthetic_agent`` - a stand-in for the robot-side agent with known costs (also a script)
