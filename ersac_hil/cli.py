@@ -96,7 +96,7 @@ def _extensions():
     import importlib
     for name in ("ersac_hil.agent.cli", "ersac_hil.daemon.cli", "ersac_hil.demo", "ersac_hil.certs",
                  "ersac_hil.reproduce.cli", "ersac_hil.dashboard.cli",
-                 "ersac_hil.agent.operator"):
+                 "ersac_hil.agent.operator", "ersac_hil.commission.cli"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:

@@ -38,6 +38,11 @@ def register(subparsers) -> None:
     pacing.add_argument("--lockstep", action="store_true",
                         help="the next SYNC as soon as the simulator answered (the default on a "
                              "simulated bench; refused on any other bus)")
+    p.add_argument("--description", default="ubot5",
+                   help="robot description: a shipped NAME (ubot5, ubot5-cia402) or a TOML file; the "
+                        "setpoint limits come from it, and on a physical bus the commissioning record")
+    p.add_argument("--commission-record", dest="commission_record", metavar="FILE",
+                   help="the record 'ersac-hil commission' wrote (default: the state directory, docs/deploy.md)")
     p.add_argument("--period-ms", type=positive_float, default=5.0, help="control period (default 5 ms)")
     p.add_argument("--deadline-ms", type=positive_float, default=250.0,
                    help="how long a SYNC cycle waits for its TPDOs (default 250 ms)")
@@ -49,10 +54,17 @@ def register(subparsers) -> None:
 def _validate(args: argparse.Namespace) -> None:
     """The robot's key space, and a bus that opens (before any session or thread starts)."""
     from protocol.zenoh import KeySpace
+    from protocol.robot import DescriptionError, load_description
     try:
         KeySpace(args.robot, args.prefix)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        args.loaded = load_description(args.description)
+        from ersac_hil.agent.limits import SetpointLimits
+        args.limits = SetpointLimits.from_description(args.loaded)
+    except (DescriptionError, OSError, ValueError) as exc:
+        raise UsageError(f"--description: {exc}") from None
     if args.lockstep:  # before the bus is opened: a physical bus is refused as such
         from ersac_hil.agent.safety import lockstep_refusal, physical_bus
         from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
@@ -71,6 +83,7 @@ def _validate(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from ersac_hil.agent.bus import BusTiming
+    from ersac_hil.agent.episode import EpisodeConfig
     from ersac_hil.agent.safety import physical_bus
     from ersac_hil.agent.service import AgentConfig, AgentService
     from ersac_hil.lifecycle import serve
@@ -94,7 +107,8 @@ def _run(args: argparse.Namespace) -> int:
                              record_can=args.record_can, record_format=args.record_format,
                              record_series=args.record_series,
                              ros2=ros2_options(args), record=args.record,
-                             timing=timing, pacing=pacing)
+                             timing=timing, pacing=pacing, episode=EpisodeConfig(limits=args.limits),
+                             description=args.loaded, commission_record=args.commission_record)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),
                        mode=config.zenoh_mode)  # refuse a bad or insecure session config up front
@@ -109,6 +123,8 @@ def _run(args: argparse.Namespace) -> int:
             quiet_gc()
             print(f"agent ready: {service.keys.root} on {bus.describe()}, {_pacing_line(pacing, real)}",
                   flush=True)
+            if service.uncommissioned is not None:
+                print(f"agent: refusing episodes: {service.uncommissioned}", flush=True)
 
         def stop(self) -> None:
             service.stop()

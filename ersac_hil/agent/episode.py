@@ -95,7 +95,7 @@ class EpisodeConfig:
     testbench_recent_s: float = 5.0
     node_timeout_s: float = 1.0
     robot: RobotParameters = UBOT
-    limits: SetpointLimits = field(default_factory=SetpointLimits.from_robot)
+    limits: SetpointLimits = field(default_factory=SetpointLimits.default)
     quick_stop: QuickStop = BoardQuickStop()
 
     def task(self, name: str) -> Task:

@@ -10,10 +10,11 @@ Two kinds of setpoint, two rules:
   and its sampled trajectory) outside the limits is refused (``LimitViolation``, reply
   ``invalid_request``) before anything is sent: nothing moves.
 
-The limits come from the robot: ``SetpointLimits.from_robot`` takes today's uBot constants
-(``agent.robot.UBOT``: the joints' mechanical ranges, the wheel drivers' torque at their
-current limit, the stiffness and damping the arm boards accept); a robot description narrows
-them. Inside the limits nothing changes: a clamp is the identity there, so episodes of the
+The limits come from the robot description (``SetpointLimits.from_description``: each axis's
+``torque_limit``, ``position_limits``, ``velocity_limit``, ``stiffness_range`` and
+``damping_range``; where two axes share a setpoint, both arms, the tighter of the two), or
+from today's uBot constants (``from_robot``, ``agent.robot.UBOT``), which the shipped ``ubot5``
+description repeats. Inside the limits nothing changes: a clamp is the identity there, so episodes of the
 board profile stay bit for bit the same.
 """
 from __future__ import annotations
@@ -27,9 +28,7 @@ import numpy as np
 from ersac_hil.agent.errors import LimitViolation
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.telemetry import Commands
-
-TORSO_RANGE = (-2.6, 2.6)
-"""Mechanical range of the uBot's torso yaw [rad] (until the robot description gives it)."""
+from protocol.robot import RobotDescription, default_description
 
 
 @dataclass(frozen=True)
@@ -55,9 +54,41 @@ class SetpointLimits:
             raise ValueError(f"invalid setpoint limits {self}")
 
     @classmethod
+    def from_description(cls, description: RobotDescription) -> "SetpointLimits":
+        """The description's limits (``ValueError`` naming an axis the agent needs and it lacks)."""
+        def axes(*names: str):
+            try:
+                return [description.axis(n) for n in names]
+            except KeyError as exc:
+                raise ValueError(f"robot description {description.name}: {exc.args[0]}") from None
+
+        def common(ranges, what: str) -> tuple[float, float]:
+            if any(r is None for r in ranges):
+                raise ValueError(f"robot description {description.name}: an arm axis has no {what}")
+            return max(r.min for r in ranges), min(r.max for r in ranges)
+
+        arms = axes("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
+        (torso,) = axes("torso")
+        if torso.position_limits is None:
+            raise ValueError(f"robot description {description.name}: torso has no position_limits")
+        return cls(wheel_torque=min(a.torque_limit for a in axes("wheel_left", "wheel_right")),
+                   torso=torso.position_limits.as_tuple(),
+                   shoulder=common([arms[0].position_limits, arms[2].position_limits], "position_limits"),
+                   elbow=common([arms[1].position_limits, arms[3].position_limits], "position_limits"),
+                   stiffness=common([a.stiffness_range for a in arms], "stiffness_range"),
+                   damping=common([a.damping_range for a in arms], "damping_range"),
+                   velocity=min(a.velocity_limit for a in arms))
+
+    @classmethod
+    def default(cls) -> "SetpointLimits":
+        """The default description's (``ubot5``)."""
+        return cls.from_description(default_description())
+
+    @classmethod
     def from_robot(cls, robot: RobotParameters = UBOT) -> "SetpointLimits":
-        """Today's constants of the uBot (``RobotParameters``)."""
-        return cls(wheel_torque=robot.wheel_torque_limit, torso=TORSO_RANGE,
+        """Today's constants of the uBot (``RobotParameters``; the torso's range from the
+        default description)."""
+        return cls(wheel_torque=robot.wheel_torque_limit, torso=cls.default().torso,
                    shoulder=robot.shoulder_range, elbow=robot.elbow_range,
                    stiffness=(0.0, robot.stiffness_max), damping=(0.0, robot.damping_max),
                    velocity=robot.arm_velocity_limit)

@@ -43,6 +43,7 @@ from ersac_hil.ros2.options import Ros2Options
 from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
 from protocol.can.devices import TESTBENCH
+from protocol.robot import RobotDescription, default_description
 from protocol.zenoh import (AgentState, EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply,
                             EstopCommand, InvalidField, KeySpace, PayloadError)
 
@@ -68,6 +69,10 @@ class AgentConfig:
         episode: what episodes do (policies, LQR weights, cost weights, limits).
         pacing: ``auto`` (real time unless the bus is a simulated bench; ``timing.realtime``
             forces real time), ``realtime`` or ``lockstep`` (``agent.safety.pacing``).
+        description: the robot description (commissioning record; ``None``: the default).
+        require_commissioning: serve episodes only after ``ersac-hil commission`` passed for
+            this description and these nodes (``None``: on a physical bus, ``agent.safety``);
+            commission_record: where that record is (default: the state directory).
     """
     robot: str
     bus: BusConfig
@@ -85,6 +90,9 @@ class AgentConfig:
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     pacing: str = "auto"
+    description: RobotDescription | None = None
+    require_commissioning: bool | None = None
+    commission_record: str | None = None
 
     @property
     def keys(self) -> KeySpace:
@@ -108,6 +116,8 @@ class AgentService:
         requested = config.pacing if config.pacing != "auto" or not config.timing.realtime else "realtime"
         self.safety = Safety(requested)
         self._running = False
+        self.uncommissioned: str | None = None
+        """Why episodes are refused until ``ersac-hil commission`` passes (``None``: they are not)."""
         self.recorder: CanRecorder | None = None
         self.feed = None  # ersac_hil.ros2.feed.Feed: the ROS 2 node and MCAP episodes
         self.episodes = 0
@@ -117,6 +127,14 @@ class AgentService:
     def start(self) -> None:
         cfg = self.config
         self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
+        required = cfg.require_commissioning
+        if required if required is not None else physical_bus(cfg.bus) is not None:
+            from ersac_hil.commission.gate import refusal
+            sdos = {d.node_id: self.bus.nodes[d.name].sdo for d in self.bus.devices}
+            self.uncommissioned = refusal(cfg.description or default_description(), cfg.bus, self.bus.net,
+                                          sdos, cfg.commission_record)
+            if self.uncommissioned is not None:
+                log.warning("%s", self.uncommissioned)
         self.runner = EpisodeRunner(self.bus, cfg.episode, safety=self.safety)
         if cfg.record_can is not None:
             self.recorder = CanRecorder(cfg.bus, cfg.record_can, cfg.record_format).start()
@@ -187,7 +205,7 @@ class AgentService:
             return self._refuse(query, ErrorReply.from_exception(exc, _payload_code(exc)))
         except Exception as exc:  # never leave a query without a reply
             return self._refuse(query, ErrorReply.from_exception(exc, "internal"))
-        refusal = self.safety.refusal()
+        refusal = self.safety.refusal() or self.uncommissioned
         if refusal is not None:
             return self._refuse(query, ErrorReply("unavailable", refusal))
         if not self._busy.acquire(blocking=False):
@@ -296,6 +314,8 @@ class AgentService:
         engaged = self.safety.engaged
         if engaged is not None:
             phase, detail = "stopped", f"e-stop engaged: {engaged}; release: ersac-hil estop --release"
+        elif self.uncommissioned is not None:
+            phase, detail = "uncommissioned", self.uncommissioned
         elif self.safety.waiting or (not bench and not self.safety.armed and not self._running):
             phase, detail = "waiting_for_go", "no test bench: reset the robot, then ersac-hil go"
         elif self._running:

@@ -191,6 +191,7 @@ AGENT_PHASES: tuple[str, ...] = (
     "waiting_for_go",  # no test bench: the next episode waits for a person's go (``ersac-hil go``)
     "running",  # an episode is running
     "stopped",  # e-stop engaged: every axis in quick stop, no episode until released
+    "uncommissioned",  # a physical bus without a passed ``ersac-hil commission``: no episode
 )
 #: How the agent paces SYNC (``AgentState.pacing``).
 PACINGS: tuple[str, ...] = ("realtime", "lockstep")

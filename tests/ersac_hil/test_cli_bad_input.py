@@ -47,6 +47,10 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--lockstep",
           "--realtime"), "not allowed with argument"),
     ],
+    "commission": [(("--description", "{tmp}/none.toml", "--bus-interface", "virtual", "--bus-channel", "x"),
+                    "--description"),
+                   (("--move", "tail", "--bus-interface", "virtual", "--bus-channel", "x"), "no such axis"),
+                   (("--bus-interface", "remote", "--bus-channel", "ws://127.0.0.1:9/"), "no CAN hub answers")],
     "estop": [(("--robot", "a/b", *Z), "not a valid key chunk"), (("--timeout", "0", *Z), "must be positive")],
     "go": [(("--robot", "a/b", *Z), "not a valid key chunk"), (("--timeout", "-1", *Z), "must be positive")],
     "daemon": [
