@@ -74,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
         return 1
     try:
-        for line in move_axis(description, args.bus, args.move):
+        for line in move_axis(description, args.bus, args.move, sdo_timeout_s=args.sdo_timeout_ms / 1000.0):
             print(line, flush=True)
     except MoveRefused as exc:
         print(f"ersac-hil commission: --move {args.move}: {exc}", file=sys.stderr, flush=True)

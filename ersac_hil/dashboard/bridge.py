@@ -164,7 +164,21 @@ class Bridge:
             except Exception:  # noqa: BLE001 - the refresher must survive anything
                 log.exception("dashboard refresh failed")
 
+    def _refresh_agent(self) -> None:
+        """The agent's phase (``agent/state``): waiting for go, stopped..."""
+        from protocol.zenoh import AgentState
+        phase, detail = None, ""
+        for reply in self._session.get(self.keys.agent_state, timeout=2.0):  # type: ignore[union-attr]
+            if reply.ok is not None:
+                try:
+                    state = AgentState.from_json(reply.ok.payload)
+                except PayloadError:
+                    continue
+                phase, detail = state.phase, state.detail
+        self._apply(lambda: self.model.set_agent_state(phase, detail))
+
     def _refresh_once(self) -> None:
+        self._refresh_agent()
         try:
             state = self._client.state()
         except ClientError as exc:

@@ -170,6 +170,8 @@ class DashboardModel:
         self.critic: CriticView | None = None
         self.critic_note = "waiting for the learner"
         self.agent_alive: bool | None = None
+        self.agent_phase: str | None = None  # AgentState.phase: waiting_for_go, stopped...
+        self.agent_detail = ""
         self.last_fault = ""
         self.learner_note = "waiting for the learner"
         self.run_id: str | None = None
@@ -326,7 +328,20 @@ class DashboardModel:
         if alive == self.agent_alive:
             return []
         self.agent_alive = alive
-        return [self._event("agent", alive=alive)]
+        if not alive:
+            self.agent_phase, self.agent_detail = None, ""
+        return [self._agent_event()]
+
+    def set_agent_state(self, phase: str | None, detail: str = "") -> list[Event]:
+        """The agent's ``agent/state`` (``None``: it did not answer): ready, waiting for go,
+        running, stopped by an e-stop, uncommissioned."""
+        if (phase, detail) == (self.agent_phase, self.agent_detail):
+            return []
+        self.agent_phase, self.agent_detail = phase, detail
+        return [self._agent_event()]
+
+    def _agent_event(self) -> Event:
+        return self._event("agent", alive=self.agent_alive, phase=self.agent_phase, detail=self.agent_detail)
 
     def notice(self, level: str, text: str) -> list[Event]:
         """A message for people: a refused put on ``learner/error``, a payload that did not decode."""
@@ -353,5 +368,6 @@ class DashboardModel:
             **self._state_data(), **self.curve(),
             "critic": None if self.critic is None else asdict(self.critic),
             "critic_note": self.critic_note, "agent_alive": self.agent_alive,
+            "agent_phase": self.agent_phase, "agent_detail": self.agent_detail,
             "last_fault": self.last_fault,
         }

@@ -5,7 +5,7 @@
 
 const D = {
   seq: 0, robot: "", readOnly: true, task: null, state: null, learnerNote: "",
-  points: [], means: [], marks: [], critic: null, criticNote: "", agentAlive: null,
+  points: [], means: [], marks: [], critic: null, criticNote: "", agentAlive: null, agentPhase: null, agentDetail: "",
   lastFault: "", latency: [], curveDrawn: false, selection: null,
 };
 window.dashboard = D;
@@ -133,10 +133,12 @@ function renderState() {
 }
 
 function renderAgent() {
-  const a = $("agent"), text = D.agentAlive === null ? "?" : D.agentAlive ? "alive" : "absent";
+  const phase = D.agentPhase ? D.agentPhase.replaceAll("_", " ") : null;
+  const text = D.agentAlive === null ? "?" : D.agentAlive ? (phase || "alive") : "absent";
+  const a = $("agent");
   a.textContent = `agent ${text}`;
-  a.className = "badge " + (D.agentAlive ? "on" : "off");
-  $("s-agent").textContent = text;
+  a.className = "badge " + (D.agentAlive && D.agentPhase !== "stopped" && D.agentPhase !== "uncommissioned" ? "on" : "off");
+  $("s-agent").textContent = D.agentDetail ? `${text}: ${D.agentDetail}` : text;
 }
 
 function addNotice(level, text) {
@@ -271,13 +273,17 @@ const handlers = {
     D.robot = data.robot; D.readOnly = data.read_only; applyState(data);
     D.points = data.points; D.critic = data.critic; D.criticNote = data.critic_note;
     D.agentAlive = data.agent_alive; D.lastFault = data.last_fault;
+    D.agentPhase = data.agent_phase; D.agentDetail = data.agent_detail;
     renderState(); renderCurve(); renderCritic();
   },
   episode: onEpisode,
   curve(data) { D.points = data.points; renderCurve(); },
   state(data) { applyState(data); renderState(); renderCurve(); },
   critic(data) { D.critic = data.critic; D.criticNote = data.critic_note; renderCritic(); },
-  agent(data) { D.agentAlive = data.alive; renderAgent(); },
+  agent(data) {
+    if (data.alive !== null && data.alive !== undefined) D.agentAlive = data.alive;
+    D.agentPhase = data.phase; D.agentDetail = data.detail; renderAgent();
+  },
   fault(data) { D.lastFault = data.last_fault; $("s-fault").textContent = D.lastFault; },
   notice(data) { addNotice(data.level, data.text); },
 };

@@ -11,7 +11,10 @@ import pytest
 
 from ersac_hil.cli import main
 from ersac_hil.commission.fingerprint import recorded
-from helpers.timing import PATIENCE_MS
+from helpers.can_nodes import Master
+from helpers.timing import PATIENCE_MS, patient_controllers
+from protocol.can.devices import DEVICES
+from firmware_sim.controllers.boards import BOARDS
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from protocol.can.busconfig import BusConfig
 from protocol.robot.load import SHIPPED_DIR
@@ -25,6 +28,11 @@ UBOT5 = (SHIPPED_DIR / "ubot5.toml").read_text()
 def robot():
     bus = BusConfig("virtual", f"commission-{uuid.uuid4().hex[:8]}")
     with SimulatedRobot(bus) as sim:
+        master = Master(bus, DEVICES)
+        try:
+            patient_controllers(master.nodes.values())  # --move's heartbeat may stall under load
+        finally:
+            master.close()
         yield bus, sim
 
 
@@ -148,3 +156,25 @@ def test_the_agent_serves_episodes_only_after_commissioning_passed(robot, tmp_pa
     assert refusal() is None
     record.write_text(record.read_text().replace('"fingerprint": "', '"fingerprint": "0'))  # another robot
     assert "does not match robot description ubot5" in refusal()
+
+
+def test_move_needs_the_typed_axis_and_moves_only_that_axis_a_little(robot, tmp_path, capsys):
+    import re
+    bus, sim = robot
+    record = tmp_path / "m.json"
+    cycles = sim.stats.cycles
+    code, lines = run(bus, "ubot5", record, capsys, "--move", "elbow_left", "--yes-move", "elbow")
+    assert code == 1 and "not confirmed" in lines[-1] and "nothing moved" in lines[-1]
+    assert sim.stats.cycles == cycles  # no SYNC
+    code, lines = run(bus, "ubot5", record, capsys, "--move", "wheel_left", "--yes-move", "wheel_left")
+    assert code == 1 and "torque axis" in lines[-1] and sim.stats.cycles == cycles
+    code, lines = run(bus, "ubot5", record, capsys, "--move", "elbow_left", "--yes-move", "elbow_left")
+    assert code == 0, lines
+    moved = float(re.search(r"moved ([+-][0-9.]+) rad for ([+-][0-9.]+) asked", lines[-1]).group(1))
+    asked = float(re.search(r"moved ([+-][0-9.]+) rad for ([+-][0-9.]+) asked", lines[-1]).group(2))
+    assert abs(asked) == 0.05 and moved * asked > 0 and abs(moved) <= 2 * abs(asked)  # its way, a little
+    assert sim.stats.cycles > cycles
+    with sim.lock:
+        arms = {axis: sim.sim.controller(board).status(axis).enabled
+                for board in ("arm_left", "arm_right", "torso", "wheels") for axis in BOARDS[board]}
+    assert not any(arms.values())  # disabled again at the end

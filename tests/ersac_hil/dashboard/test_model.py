@@ -194,3 +194,17 @@ def test_snapshot_is_strict_json_and_holds_everything_seen(episodes, kappas):
     assert all(c is not None and math.isfinite(c) for c in ok_costs)
     changes = sum(1 for a, b in zip(kappas, kappas[1:]) if a != b)
     assert len(snap["kappa_marks"]) == 1 + changes
+
+
+def test_the_agents_phase_is_shown_and_only_changes_make_events():
+    model = DashboardModel("ubot1")
+    assert model.set_agent_alive(True)[0][1]["alive"] is True
+    ((kind, data),) = model.set_agent_state("waiting_for_go", "no test bench: reset the robot, then ersac-hil go")
+    assert kind == "agent" and data["phase"] == "waiting_for_go" and data["alive"] is True
+    assert model.set_agent_state("waiting_for_go", "no test bench: reset the robot, then ersac-hil go") == []
+    snap = model.snapshot()
+    assert snap["agent_phase"] == "waiting_for_go" and "ersac-hil go" in snap["agent_detail"]
+    assert model.set_agent_state("stopped", "e-stop engaged: test")[0][1]["phase"] == "stopped"
+    model.set_agent_alive(False)
+    assert model.snapshot()["agent_phase"] is None  # an absent agent has no phase
+    json.dumps(model.snapshot())
