@@ -4,7 +4,7 @@ everywhere, as in the paper."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,7 @@ def _save(fig, path: Path) -> None:  # noqa: ANN001
 
 def landscape(land: Landscape, path: Path) -> None:
     """Mean cost, the mean +- 2 std band, F2, both argmins and the damage rate per theta."""
-    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
     m, s = land.mean, land.std
     ax.fill_between(land.thetas, m - 2 * s, m + 2 * s, alpha=0.25, label="mean +- 2 std")
     ax.plot(land.thetas, m, "o-", label="mean J")
@@ -39,13 +39,17 @@ def landscape(land: Landscape, path: Path) -> None:
     ax.set_xlabel("theta (arm stiffness)")
     ax.set_ylabel("cost J")
     ax2 = ax.twinx()
-    width = 0.6 * (land.thetas[1] - land.thetas[0]) if len(land.thetas) > 1 else 0.03
-    ax2.bar(land.thetas, land.damage.mean(axis=1), width=width, color=DAMAGE, alpha=0.35, label="damage rate")
+    # the damage rate at each theta as a stem at that theta (bars of a bin width would reach
+    # past the policy's bounds [0, 1] at the ends of the grid)
+    rate = land.damage.mean(axis=1)
+    ax2.vlines(land.thetas, 0.0, rate, color=DAMAGE, alpha=0.35, lw=5, label="damage rate")
+    ax2.plot(land.thetas, rate, "_", color=DAMAGE, ms=10)
     ax2.set_ylim(0, 1)
+    ax.set_xlim(-0.02, 1.02)
     ax2.set_ylabel("damage rate")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="upper center", fontsize=8)
+    ax.legend(h1 + h2, l1 + l2, loc="upper left", bbox_to_anchor=(1.12, 1.0), fontsize=8, frameon=False)
     ax.set_title(f"bracing landscape, {land.J.shape[1]} episodes per theta")
     _save(fig, path)
 
@@ -144,10 +148,10 @@ def _strip(ax, pos: float, values: Sequence[float], colour: str, marks=None) -> 
     ax.scatter(pos + jitter, v, s=12, c=colours, zorder=3)
 
 
-def fig4(columns: Mapping[int, Sequence[tuple[str, Sequence[Any]]]], path: Path) -> None:
-    """Paper Fig. 4: test costs per stage (box + points, dropped bottles red), per run seed,
-    with the success rate under each box."""
-    from .lifting import success
+def fig4(columns: Mapping[int, Sequence[tuple[str, Sequence[Any]]]], success: Callable[[Any], bool],
+         path: Path) -> None:
+    """Paper Fig. 4: test costs per stage (box + points, failures red), per run seed, with the
+    success rate under each box; ``success(trial)`` says whether a test trial succeeded."""
     seeds = sorted(columns)
     fig, axes = plt.subplots(1, len(seeds), figsize=(3.2 * len(seeds), 4), sharey=True,
                              constrained_layout=True, squeeze=False)

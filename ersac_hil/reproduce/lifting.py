@@ -96,7 +96,7 @@ def analyse(sizes: Sizes, out: Path, trials: TrialStore, say=print) -> dict[str,
             "welch_p_initial_vs_last": welch(costs[first], costs[last]),
             "learning_cost": h.cost.tolist(),
         }
-    figures.fig4(columns, out / "fig4_lifting.png")
+    figures.fig4(columns, success, out / "fig4_lifting.png")
     figures.learning_curves({s: history(r.db(out)) for s, r in
                              ((r.seed, r) for r in plan.lifting_runs(sizes))}, out / "lifting_learning.png")
     labels = [label for label, _ in stages(sizes)]

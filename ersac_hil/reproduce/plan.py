@@ -7,7 +7,8 @@ seeds and the same perturbation draws), a Monte Carlo landscape of 100 episodes 
 ``LANDSCAPE_EPISODES``), 52 random policies for the Fig. 2 fit; lifting 30 episodes per run, >= 5 run seeds,
 10 test trials of the initial policy and of the policies after 15 and 30 episodes; contexts:
 5 risk-averse episodes after the offline selection, 10 test trials per column. ``QUICK`` is a
-tiny variant that exercises the same code (CI, smoke tests); its figures mean nothing.
+small variant that exercises the same code (CI, smoke tests): large enough that every learner
+updates and every comparison has a number, far too small for its figures to mean anything.
 
 Scenario seeds: the landscape uses seeds 0..n-1 at every theta (common random numbers); random
 policies, lifting test trials and context trials use fixed seed blocks far from each other, so
@@ -80,8 +81,11 @@ class Sizes:
 
 
 FULL = Sizes()
-QUICK = Sizes(bracing_seeds=1, bracing_episodes=6, landscape_step=1.0, landscape_episodes=2,
-              random_policies=3, fig1_after=(3, 6), last_window=3, lifting_seeds=1,
+#: Two paired run seeds (a Wilcoxon p needs two differences) of 12 bracing episodes (the
+#: learner's warm-up is 9 - the critic's min_neighbours - so each run makes 3 updates), lifting
+#: 12 episodes: every comparison has numbers and every target is evaluated.
+QUICK = Sizes(bracing_seeds=2, bracing_episodes=12, landscape_step=1.0, landscape_episodes=2,
+              random_policies=3, fig1_after=(6, 12), last_window=4, lifting_seeds=1,
               lifting_episodes=12, lifting_stage=6, test_trials=2, context_episodes=2, grid=11)
 
 

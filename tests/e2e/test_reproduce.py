@@ -4,6 +4,7 @@ again), then the results files exist and parse, and the figures are PNGs."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -63,17 +64,20 @@ def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
 
     results = json.loads((out / "results.json").read_text())
     bracing = results["bracing"]
-    assert len(bracing["final_theta"]["kappa_2"]) == len(bracing["final_theta"]["kappa_0"]) == 1
+    assert len(bracing["final_theta"]["kappa_2"]) == len(bracing["final_theta"]["kappa_0"]) == 2
+    assert math.isfinite(bracing["paired"]["wilcoxon_p_one_sided"])  # two paired differences
     assert bracing["landscape"]["episodes_per_theta"] == 2 and len(bracing["landscape"]["rows"]) == 2
     assert {t["target"].split(":")[0] for t in results["targets"]} >= {"landscape", "bracing"}
     assert "| run seed |" in (out / "results.md").read_text()
     for name in ("bracing_landscape.png", "bracing_runs.png", "fig1_critic.png", "fig2_critic.png"):
         assert (out / name).read_bytes()[:8] == PNG, name
-    for kappa in ("2", "0"):
-        with Store(out / "runs" / f"bracing-k{kappa}-s1.db", readonly=True) as store:
+    for kappa, seed in ((k, s) for k in ("2", "0") for s in (1, 2)):
+        with Store(out / "runs" / f"bracing-k{kappa}-s{seed}.db", readonly=True) as store:
             (run,) = store.runs()
-            assert run.status == "finished" and len(store.ok_episodes(run.run_id)) == 6
+            assert run.status == "finished" and len(store.ok_episodes(run.run_id)) == 12
             assert run.settings["eta"] == 0.7 and run.settings["sigma"] == [0.05]  # the paper's
+            moves = [u for u in store.updates(run.run_id) if u.theta_after != u.theta_before]
+            assert moves, "the learner never moved theta: the quick run is inside its warm-up"
 
 
 def test_quick_contexts_with_interleaved_lifting_runs_carry_the_option_to_every_daemon(tmp_path):

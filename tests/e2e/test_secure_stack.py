@@ -28,6 +28,8 @@ from ersac_hil.zenoh_session import (
 from helpers.waiting import wait_until
 from protocol.zenoh import ErrorReply, KappaCommand, KeySpace, SelectQuery
 
+pytestmark = pytest.mark.slow  # the whole stack (router, simulator, agent, daemon) over TLS
+
 ROUTER, DAEMON, AGENT = "127.0.0.2", "127.0.0.3", "127.0.0.4"
 EPISODES = 3
 

@@ -34,7 +34,7 @@ from ersac_hil.zenoh_session import (
     resolve_config,
     session_scope,
 )
-from helpers.waiting import wait_for_match
+from helpers.waiting import wait_for_match, wait_until
 from protocol.zenoh import (
     CriticPoint,
     CriticQuery,
@@ -414,15 +414,6 @@ def _alive(session: zenoh.Session) -> list[str]:
     return [str(r.ok.key_expr) for r in session.liveliness().get(KeySpace.alive_pattern(), timeout=TIMEOUT)]
 
 
-def _eventually(predicate, timeout_s: float = TIMEOUT) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
-
-
 def test_liveliness_token_is_seen_and_withdrawn(clients, undeclare):
     learner, agent = clients
     events: queue.Queue[tuple[str, zenoh.SampleKind]] = queue.Queue()
@@ -434,10 +425,10 @@ def test_liveliness_token_is_seen_and_withdrawn(clients, undeclare):
     assert kind == zenoh.SampleKind.PUT and KeySpace.from_key(key) == KS
     # A liveliness get is only eventually consistent with the subscriber: measured under CPU
     # load, ~20 % of gets issued right after the PUT came back empty for a few ms.
-    assert _eventually(lambda: _alive(learner) == [KS.agent_alive])
+    wait_until(lambda: _alive(learner) == [KS.agent_alive], TIMEOUT, poll_s=0.005, what="the token in a get")
     token.undeclare()
     assert _until_delete(events)[-1] == (KS.agent_alive, zenoh.SampleKind.DELETE)
-    assert _eventually(lambda: _alive(learner) == [])
+    wait_until(lambda: _alive(learner) == [], TIMEOUT, poll_s=0.005, what="the token gone from a get")
 
 
 def test_closing_a_client_withdraws_its_token(router, clients, undeclare):

@@ -201,12 +201,16 @@ def test_second_request_while_busy_is_refused(stack):
     assert first[0][0] is not None and first[0][0].status == "ok"
 
 
-def test_agent_process_stops_cleanly_on_sigterm(stack):
-    stack.agent.send_signal(signal.SIGTERM)
-    out, err = stack.agent.communicate(timeout=10)
-    assert stack.agent.returncode == 143, err
-    assert "agent stopped after" in out and "Traceback" not in err
-    wait_until(lambda: not alive(stack.session), what="the liveliness token gone after the agent stopped")
+def test_agent_process_stops_cleanly_on_sigterm():
+    own = Stack()  # its own agent: the module's stack serves the other tests, in any order
+    try:
+        own.agent.send_signal(signal.SIGTERM)
+        out, err = own.agent.communicate(timeout=10)
+        assert own.agent.returncode == 143, err
+        assert "agent stopped after" in out and "Traceback" not in err
+        wait_until(lambda: not alive(own.session), what="the liveliness token gone after the agent stopped")
+    finally:
+        own.close()
 
 
 # python-can-remote's per-client sender thread in the hub raises when its client is killed

@@ -9,6 +9,7 @@ a secured router (TLS, the roles' certificates and access control).
 from __future__ import annotations
 
 import contextlib
+import inspect
 import json
 import subprocess
 import sys
@@ -454,21 +455,23 @@ def test_a_busy_polling_bus_pushes_on_its_receive_thread_which_ends_at_shutdown(
     assert not any(t.name == f"zenoh-can-rx {b.key}" for t in _rx_threads())
 
 
-def _cpu_ticks(thread) -> int:  # noqa: ANN001
-    """User plus system clock ticks the kernel has charged ``thread`` (Linux)."""
-    with open(f"/proc/self/task/{thread.native_id}/stat") as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    return int(fields[11]) + int(fields[12])
+def _blocked_in_recv(thread) -> bool:  # noqa: ANN001
+    """``thread`` (a busy-polling bus's receive thread) is in the blocking ``recv`` of Zenoh's
+    channel, not in its polling loop: its Python frame is at that call (the polling loop
+    never reaches it while its window is open)."""
+    lines, first = inspect.getsourcelines(ZenohBus._receive)
+    at = first + next(i for i, line in enumerate(lines) if "sample = recv()" in line)
+    frame = sys._current_frames().get(thread.ident)
+    return frame is not None and frame.f_code is ZenohBus._receive.__code__ and frame.f_lineno == at
 
 
 def test_a_busy_polling_bus_blocks_once_frames_stop(can_router):
-    """It polls only within ``busy_poll`` of the last frame: idle, its thread uses no processor."""
+    """It polls only within ``busy_poll`` of the last frame, then blocks in Zenoh's channel
+    (idle, its thread uses no processor), and the next frame wakes it."""
     with _polling_link(can_router, 0.05) as (a, b):
         thread = next(t for t in _rx_threads() if t.name.endswith(b.key))
-        time.sleep(0.2)  # past the window: blocked
-        before = _cpu_ticks(thread)
-        time.sleep(1.0)
-        idle = _cpu_ticks(thread) - before
-        a.send(can.Message(arbitration_id=0x123, data=b"go"))
-        assert b.recv(TIMEOUT) is not None
-        assert idle <= 2, f"an idle busy-polling bus used {idle} ticks in 1 s"
+        for k in range(3):
+            a.send(can.Message(arbitration_id=0x120 + k, data=b"go"))  # opens the polling window
+            assert b.recv(TIMEOUT) is not None
+            from helpers.waiting import wait_until
+            wait_until(lambda: _blocked_in_recv(thread), what="the receive thread blocked after its window")
