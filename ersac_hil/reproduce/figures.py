@@ -71,7 +71,7 @@ def bracing_runs(runs: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], ta
         bx.axhline(y, color=c, ls=":", lw=1)
     ax.set_xlabel("episode")
     ax.set_ylabel("policy mean theta")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="best")
     ax.grid(alpha=0.3)
     for s in seeds:
         a, b = runs["2"][s].theta_after[-1][0], runs["0"][s].theta_after[-1][0]
@@ -110,7 +110,11 @@ def fig1(grid: np.ndarray, panels: Sequence[Mapping[str, Any]], land: Landscape,
         ax.set_xlim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("cost J")
-    axes[0][0].legend(fontsize=7)
+    seen: dict[str, Any] = {}  # one legend beside the panels, off the data
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(label, handle)
+    fig.legend(seen.values(), seen.keys(), loc="outside right upper", fontsize=7, frameon=False)
     fig.suptitle("bracing, kappa 2: the critic along learning (damage red)")
     _save(fig, path)
 
@@ -118,7 +122,7 @@ def fig1(grid: np.ndarray, panels: Sequence[Mapping[str, Any]], land: Landscape,
 def fig2(grid: np.ndarray, fit, x, y, damage, n_learning: int, final: float, argmin: float,  # noqa: ANN001
          path: Path) -> None:
     """Paper Fig. 2: one fit on learning + random-policy episodes, the final policy."""
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(9.5, 4.8), constrained_layout=True)
     if fit is not None:
         _critic_panel(ax, grid, fit[0], fit[1], 2.0)
     x, y, damage = np.asarray(x), np.asarray(y), np.asarray(damage, dtype=bool)
@@ -133,7 +137,7 @@ def fig2(grid: np.ndarray, fit, x, y, damage, n_learning: int, final: float, arg
     ax.set_xlabel("theta (arm stiffness)")
     ax.set_ylabel("cost J")
     ax.set_title(f"bracing: cost distribution fitted on {len(x)} episodes")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.grid(alpha=0.3)
     _save(fig, path)
 
