@@ -29,7 +29,11 @@ simulator  the CAN bus only: send and receive frames on ``can/**`` (the CAN-over
            channels, ``ersac_hil.canbus.zenoh_bus``), like the agent; nothing else
 =========  ===================================================================================
 
-The CAN bus between an agent and its robot (CAN over Zenoh) is the one key space outside
+ROS 2 (``agent --ros2``, ``ersac_hil.ros2``) lives outside ``<prefix>/`` too: on its ROS domain
+the agent may put ``<domain>/**`` and declare tokens ``@ros2_lv/<domain>/**``; operators and
+observers may subscribe to and read them (:func:`ros2_rules`).
+
+The CAN bus between an agent and its robot (CAN over Zenoh) is the other key space outside
 ``<prefix>/<robot>/``: ``can/<channel>``, sent and received by ``agent`` and ``simulator``
 (a simulated robot, or a gateway to a real one), by no other role.
 
@@ -51,7 +55,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "ROBOT_ROLES", "identities",
+__all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "ROBOT_ROLES", "ROS2_PUBLISHERS",
+           "ROS2_READERS", "ros2_rules", "identities",
            "parse_identity", "access_control", "permitted"]
 
 #: Every role; the certificate common name of a role is its name.
@@ -140,6 +145,29 @@ for _role in ("daemon", "operator", "observer"):
     PERMISSIONS[_role]["egress"].append((("declare_queryable", "reply"), (_AGENT_STATE,)))
 
 
+# ROS 2 over rmw_zenoh (``ersac_hil.ros2``, ``agent --ros2``): outside ``<prefix>/<robot>/``,
+# the data keys ``<domain>/**`` and the liveliness tokens ``@ros2_lv/<domain>/**`` of one ROS
+# domain. The agent publishes and declares its node's tokens; operators and observers (and a
+# ROS 2 machine given an observer's certificate) subscribe and read the tokens.
+#: Roles that publish for ROS 2, and roles that may read it.
+ROS2_PUBLISHERS: tuple[str, ...] = ("agent",)
+ROS2_READERS: tuple[str, ...] = ("operator", "observer")
+
+
+def ros2_rules(name: str, role: str, domain: int = 0) -> list[dict[str, Any]]:
+    """The access-control rules of identity ``name`` (of ``role``) on ROS domain ``domain``."""
+    data, tokens = [f"{domain}/**"], [f"@ros2_lv/{domain}/**"]
+    if role in ROS2_PUBLISHERS:
+        grants = [("ingress", ("put",), data), ("ingress", ("liveliness_token",), tokens)]
+    elif role in ROS2_READERS:
+        grants = [("ingress", ("declare_subscriber",), data), ("ingress", _LIVELINESS_READ, tokens),
+                  ("egress", ("put",), data), ("egress", ("liveliness_token", "reply"), tokens)]
+    else:
+        return []
+    return [{"id": f"{name}-ros2-{i}", "permission": "allow", "flows": [flow], "messages": list(messages),
+             "key_exprs": keys} for i, (flow, messages, keys) in enumerate(grants)]
+
+
 #: The CAN-over-Zenoh channels (``ersac_hil.canbus.zenoh_bus``: key ``can/<channel>``).
 CAN_KEYS: tuple[str, ...] = ("can/**",)
 #: Roles on the CAN bus: each sends frames and receives the others' (both directions).
@@ -179,7 +207,8 @@ def parse_identity(common_name: str) -> tuple[str, str | None]:
                      f"{'/'.join(ROBOT_ROLES)}-<robot>)")
 
 
-def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str] = ()) -> dict[str, Any]:
+def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str] = (),
+                   ros_domain: int = 0) -> dict[str, Any]:
     """The router's ``access_control`` section (Zenoh 1.10 schema) for the roles above.
 
     Args:
@@ -188,6 +217,7 @@ def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str
             the fleet-wide roles).
         robots: per-robot identities instead of the fleet-wide ``agent`` and ``simulator``
             (see the module doc); empty: none.
+        ros_domain: the ROS domain of ``agent --ros2`` (``ros2_rules``).
     """
     rules, policies = [], []
     for name, role, own in identities(robots):
@@ -207,6 +237,9 @@ def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str
                           "messages": list(_CAN_MESSAGES),
                           "key_exprs": list(CAN_KEYS) if own is None else [f"can/{own}"]})
             ids.append(f"{name}-can")
+        ros2 = ros2_rules(name, role, ros_domain)
+        rules += ros2
+        ids += [r["id"] for r in ros2]
         if ids:
             policies.append({"id": f"{name}-policy", "rules": ids, "subjects": [name]})
     return {

@@ -248,6 +248,11 @@ def _check_report(args: argparse.Namespace) -> None:
         raise UsageError(f"no store at {args.db}")
     if args.series is not None and not Path(args.series).is_dir():
         raise UsageError(f"--series: no directory {args.series}")
+    if args.mcap is not None and not Path(args.mcap).resolve().parent.is_dir():
+        raise UsageError(f"--mcap: no directory for {args.mcap}")
+    if args.mcap_dir is not None and (args.mcap is None or not Path(args.mcap_dir).is_dir()):
+        raise UsageError(f"--mcap-dir: no directory {args.mcap_dir}" if args.mcap is not None
+                         else "--mcap-dir needs --mcap FILE")
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -261,6 +266,13 @@ def _report(args: argparse.Namespace) -> int:
             if not runs:
                 return _fail(f"no run in {args.db}")
             run_id = runs[-1].run_id
+        if args.mcap is not None:
+            from ersac_hil.ros2.export import export_run
+            done = export_run(args.db, run_id, args.mcap, args.mcap_dir)
+            print(f"run {run_id} in {done.path.resolve()}: {done.attempts} episodes, {done.updates} updates, "
+                  f"{done.episode_files} episode files" + (f" ({len(done.missing)} missing: "
+                  f"{', '.join(done.missing)})" if done.missing else ""), flush=True)
+            return 0
         summary = write_report(args.db, run_id, args.out, series=args.series)
     except StoreError as exc:
         return _fail(str(exc))
@@ -370,4 +382,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=output_dir, default="report", help="output directory (default ./report)")
     p.add_argument("--series", metavar="DIR",
                    help="the agent's time series files (agent --record-series DIR): draws episode.png")
+    p.add_argument("--mcap", metavar="FILE",
+                   help="instead of plots: the run's episodes and learner updates as one MCAP file")
+    p.add_argument("--mcap-dir", dest="mcap_dir", metavar="DIR",
+                   help="the agent's MCAP episodes (agent --record DIR) to copy into --mcap")
     p.set_defaults(func=_report, validate=_check_report)

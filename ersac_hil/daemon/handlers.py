@@ -132,7 +132,8 @@ def _published(record: EpisodeRecord, task: str) -> LearnerEpisode:
     result = EpisodeResult(record.episode_id, task, record.status, dict(record.cost_terms or {}),
                            record.agent_cost, dict(record.failures or {}), record.duration_s or 0.0,
                            record.wall_s or 0.0, dict(record.telemetry or {}),
-                           dict(record.fault_counts or {}), record.detail, record.trace)
+                           dict(record.fault_counts or {}), record.detail, record.trace,
+                           record.mcap)
     return LearnerEpisode(record.run_id, record.idx, record.base_theta, record.z, request, result,
                           record.cost if record.status == "ok" else None,
                           record.finished_s or record.requested_s)

@@ -6,7 +6,8 @@ Tables (schema version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``)::
     episodes  one row per *attempt*: the request (base theta, perturbation z, executed theta,
               scenario seed), the outcome (status, cost terms, cost under the current
               weights, failure flags, telemetry summary, fault counters, the file name of the
-              agent's CAN trace of the episode, if it recorded one) and timestamps.
+              agent's CAN trace of the episode, if it recorded one, and of its MCAP file) and
+              timestamps.
               ``idx`` is the learner episode the attempt serves; at most one "ok" attempt
               per (run, idx) (a partial unique index enforces it). ``update_idx``: the
               update an ok episode fed (NULL while its batch is incomplete).
@@ -26,7 +27,8 @@ A weights change and the re-costing of every stored ok episode are one transacti
 
 A store of an older schema is migrated in place when opened for writing (schema 1 -> 2: the
 ``trace`` column; 2 -> 3: ``episodes.update_idx``, filled from the updates of the time, one
-episode each); read-only opens read it as it is.
+episode each; 3 -> 4: ``episodes.mcap``, empty for the episodes of the time); read-only opens
+read it as it is.
 
 One connection shared by the daemon's threads, serialised by a lock. JSON columns hold
 floats as ``repr`` text, so values round-trip exactly.
@@ -61,13 +63,15 @@ __all__ = [
     "ChangeRecord",
 ]
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: Older schemas this code opens (read-write ones are migrated in place): 1 lacks
-#: ``episodes.trace``, 2 lacks ``episodes.update_idx`` (every update then had one episode).
+#: ``episodes.trace``, 2 lacks ``episodes.update_idx`` (every update then had one episode),
+#: 3 lacks ``episodes.mcap``.
 _MIGRATIONS = {
     1: "ALTER TABLE episodes ADD COLUMN trace TEXT NOT NULL DEFAULT ''",
     2: "ALTER TABLE episodes ADD COLUMN update_idx INTEGER; "
        "UPDATE episodes SET update_idx = (SELECT u.idx FROM updates u WHERE u.episode_id = episodes.episode_id)",
+    3: "ALTER TABLE episodes ADD COLUMN mcap TEXT NOT NULL DEFAULT ''",
 }
 RUN_STATUSES: tuple[str, ...] = ("running", "finished", "failed")
 #: Agent statuses (``protocol.zenoh.STATUSES``) plus the daemon's own: pending (sent, no
@@ -114,6 +118,7 @@ CREATE TABLE episodes (
     finished_s  REAL,
     trace       TEXT NOT NULL DEFAULT '',
     update_idx  INTEGER,
+    mcap        TEXT NOT NULL DEFAULT '',
     UNIQUE (run_id, idx, attempt)
 );
 CREATE UNIQUE INDEX episodes_one_ok ON episodes(run_id, idx) WHERE status = 'ok';
@@ -220,6 +225,7 @@ class EpisodeRecord:
     finished_s: float | None
     trace: str = ""
     update_idx: int | None = None
+    mcap: str = ""
 
     @property
     def ok(self) -> bool:
@@ -291,6 +297,7 @@ def _episode(row: sqlite3.Row) -> EpisodeRecord:
         row["duration_s"], row["wall_s"], row["detail"], row["requested_s"], row["finished_s"],
         row["trace"] if "trace" in row.keys() else "",
         row["update_idx"] if "update_idx" in row.keys() else None,
+        row["mcap"] if "mcap" in row.keys() else "",
     )
 
 
@@ -484,6 +491,7 @@ class Store:
                 failures=_dumps(dict(result.failures)), telemetry=_dumps(dict(result.telemetry)),
                 fault_counts=_dumps(dict(result.fault_counts)), duration_s=result.duration_s,
                 wall_s=result.wall_s, detail=detail or result.detail, trace=result.trace,
+                mcap=result.mcap,
             )
         sets = ", ".join(f"{k} = ?" for k in values)
         cur = db.execute(f"UPDATE episodes SET {sets} WHERE episode_id = ? AND status = 'pending'",

@@ -42,6 +42,8 @@ DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
 STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
 TOPICS: dict[str, str] = {"joint_states": JOINT_STATE, "imu": IMU, "diagnostics": DIAGNOSTICS,
                           "episode": STATUS}
+UPDATES = "learner/updates"
+"""The topic of the learner's updates in ``report --mcap`` exports (``DiagnosticStatus``)."""
 """Relative topic name -> ROS 2 type of everything the robot publishes."""
 
 CAN_FRAME = "can_msgs/msg/Frame"
@@ -173,8 +175,9 @@ def episode_status(robot: str, request: EpisodeRequest, result: EpisodeResult | 
     Level OK for an ``ok`` episode without failures, WARN with failures, ERROR otherwise."""
     values: list[tuple[str, object]] = [("task", request.task), ("seed", request.seed)]
     values += [(f"theta_{i}", repr(float(x))) for i, x in enumerate(request.theta)]
-    if result is None:
-        return _status(OK, f"{robot}/episode", "started", request.episode_id, values)
+    if result is None:  # started, or (``fault``) ended without the agent's result
+        return _status(ERROR if fault else OK, f"{robot}/episode", fault or "started", request.episode_id,
+                       values + ([("status", fault)] if fault else []))
     values += [("status", result.status),
                ("total_cost", "" if result.total_cost is None else repr(float(result.total_cost)))]
     values += [(f"cost.{k}", repr(float(v))) for k, v in sorted(result.cost_terms.items())]
@@ -202,3 +205,18 @@ def can_frame(timestamp_s: float, arbitration_id: int, data: bytes, is_extended:
 def log(stamp_ns: int, level: int, message: str, name: str) -> Any:
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
     return _t(LOG)(_t("builtin_interfaces/msg/Time")(sec, nsec), level, message, name, "", 0)
+
+
+def update_status(robot: str, update: Any) -> Any:
+    """A learner update (``ersac_hil.daemon.store.UpdateRecord``) as a DiagnosticStatus: name
+    ``<robot>/learner/update``, hardware_id the run, message ``update <idx>``; values ``idx``,
+    ``theta_before_<i>``, ``theta_after_<i>``, ``cost``, ``J``, ``r``, ``r_z``, ``td_error``
+    (empty during warm-up), ``kappa``, ``lr``, ``episodes``."""
+    def num(x: float | None) -> str:
+        return "" if x is None else repr(float(x))
+    values: list[tuple[str, object]] = [("idx", update.idx)]
+    values += [(f"theta_before_{i}", num(x)) for i, x in enumerate(update.theta_before)]
+    values += [(f"theta_after_{i}", num(x)) for i, x in enumerate(update.theta_after)]
+    values += [(k, num(getattr(update, k))) for k in ("cost", "J", "r", "r_z", "td_error", "kappa", "lr")]
+    values.append(("episodes", " ".join(update.episodes or (update.episode_id,))))
+    return _status(OK, f"{robot}/learner/update", f"update {update.idx}", update.run_id, values)

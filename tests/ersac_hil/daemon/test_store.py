@@ -228,7 +228,7 @@ def test_trace_names_are_stored_and_a_schema_1_store_is_migrated(tmp_path):
         eid = _ok_episode(store, "r1", 0, {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5})
     db = sqlite3.connect(path)  # what a schema-1 store looks like: no trace column
     db.executescript("ALTER TABLE episodes DROP COLUMN trace; ALTER TABLE episodes DROP COLUMN update_idx; "
-                     "PRAGMA user_version = 1;")
+                     "ALTER TABLE episodes DROP COLUMN mcap; PRAGMA user_version = 1;")
     db.close()
     with Store(path, readonly=True) as store:
         assert [e.trace for e in store.ok_episodes("r1")] == [""]
@@ -240,7 +240,7 @@ def test_trace_names_are_stored_and_a_schema_1_store_is_migrated(tmp_path):
         traced = EpisodeResult(eid, "bracing", "ok", terms, SPEC.total_cost(terms), trace=f"{eid}.blf")
         store.record_success(eid, traced, SPEC.total_cost(terms), _update("r1", 1, eid, 0.5, 0.52))
         assert [e.trace for e in store.ok_episodes("r1")] == ["", f"{eid}.blf"]
-    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
 
 
 def test_a_schema_2_store_is_migrated_in_place_and_keeps_everything(tmp_path):
@@ -255,7 +255,8 @@ def test_a_schema_2_store_is_migrated_in_place_and_keeps_everything(tmp_path):
         store.record_failure("r1.00003.0", "timeout", "no reply")
         before = (store.attempts("r1"), store.updates("r1"))
     db = sqlite3.connect(path)  # what a schema-2 store looks like: no update_idx column
-    db.executescript("ALTER TABLE episodes DROP COLUMN update_idx; PRAGMA user_version = 2;")
+    db.executescript("ALTER TABLE episodes DROP COLUMN update_idx; ALTER TABLE episodes DROP COLUMN mcap; "
+                     "PRAGMA user_version = 2;")
     db.close()
     with Store(path, readonly=True) as store:  # read as it is
         assert [e.update_idx for e in store.ok_episodes("r1")] == [None] * 3
@@ -273,7 +274,36 @@ def test_a_schema_2_store_is_migrated_in_place_and_keeps_everything(tmp_path):
         store.record_success("r1.00005.0", _result("r1.00005.0", terms), 1.0, update)
         assert store.updates("r1")[-1].episodes == ("r1.00004.0", "r1.00005.0")
         assert [e.update_idx for e in store.ok_episodes("r1")] == [0, 1, 2, 3, 3]
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+
+
+def test_mcap_names_are_stored_and_a_schema_3_store_is_migrated_in_place(tmp_path):
+    """Schema 3 -> 4: ``episodes.mcap`` (the agent's MCAP file of the episode), empty for the
+    episodes of the time; nothing else changes and the run goes on."""
+    path = tmp_path / "v3.db"
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5}
+    with Store(path) as store:
+        store.create_run("r1", "ubot1", "bracing", 3, {"episodes": 5})
+        for i in range(2):
+            _ok_episode(store, "r1", i, terms)
+        before = (store.attempts("r1"), store.updates("r1"))
+    db = sqlite3.connect(path)  # what a schema-3 store looks like: no mcap column
+    db.executescript("ALTER TABLE episodes DROP COLUMN mcap; PRAGMA user_version = 3;")
+    db.close()
+    with Store(path, readonly=True) as store:  # read as it is
+        assert [e.mcap for e in store.ok_episodes("r1")] == ["", ""]
+        assert (store.attempts("r1"), store.updates("r1")) == before
     assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == 3
+    with Store(path) as store:  # migrated on a read-write open
+        assert (store.attempts("r1"), store.updates("r1")) == before
+        eid = "r1.00002.0"
+        store.begin_attempt("r1", eid, 2, 0, (0.5,), (0.01,), (0.51,), 9)
+        recorded = EpisodeResult(eid, "bracing", "ok", terms, SPEC.total_cost(terms), trace=f"{eid}.blf",
+                                 mcap=f"{eid}.mcap")
+        store.record_success(eid, recorded, SPEC.total_cost(terms), _update("r1", 2, eid, 0.5, 0.52))
+        assert [(e.trace, e.mcap) for e in store.ok_episodes("r1")] == [("", ""), ("", ""),
+                                                                       (f"{eid}.blf", f"{eid}.mcap")]
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
 
 
 def test_an_update_takes_only_ok_episodes_awaiting_it(store):

@@ -161,3 +161,55 @@ def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
             js = [bag.deserialize(raw, c.msgtype) for c, _, raw in
                   bag.messages(connections=[conns["/lab/ubot1/joint_states"]])]
             assert np.array_equal([m.position for m in js], [t.position for t in telemetry])
+
+
+def test_report_exports_a_run_with_every_episode_and_the_updates(run, tmp_path):
+    """The daemon's store of these episodes (schema with the MCAP name), exported by
+    ``ersac-hil report RUN --mcap FILE --mcap-dir DIR`` into one file."""
+    from ersac_hil.cli import main
+    from ersac_hil.daemon.store import Store, UpdateRecord
+
+    replies, db = run["replies"], tmp_path / "ersac.db"
+    with Store(db) as store:
+        store.create_run("run1", "ubot-ros", "bracing", 5, {"theta0": [0.3]})
+        for i, (result, theta) in enumerate(zip(replies, (0.3, 0.5))):
+            store.begin_attempt("run1", result.episode_id, i, 0, (theta,), (0.0,), (theta,), 5)
+            update = UpdateRecord("run1", i, result.episode_id, (theta,), (theta + 0.1,), 1.0, None, None,
+                                  None, None, 1.0, 0.1, {}, 1000.0 + i)
+            if result.ok:
+                store.record_success(result.episode_id, result, result.total_cost, update)
+            else:
+                store.record_failure(result.episode_id, result.status, result.detail, result)
+        store.begin_attempt("run1", "run1.lost", 2, 0, (0.4,), (0.0,), (0.4,), 6)
+        store.record_failure("run1.lost", "timeout", "no reply")
+        assert [e.mcap for e in store.attempts("run1")] == ["ep-r1.mcap", "ep-r2.mcap", ""]
+        n_updates = len(store.updates("run1"))
+    out = tmp_path / "run1.mcap"
+    assert main(["report", "run1", "--db", str(db), "--mcap", str(out), "--mcap-dir", str(run["record"])]) == 0
+    got = defaultdict(list)
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        for _, channel, _, decoded in reader.iter_decoded_messages():
+            got[channel.topic].append(decoded)
+    assert [m.hardware_id for m in got["/ubot_ros/episode"]] == ["ep-r1", "ep-r2", "run1.lost"]
+    assert got["/ubot_ros/episode"][-1].message == "timeout"
+    assert len(got["/ubot_ros/learner/updates"]) == n_updates
+    assert len(got["/lab/ubot1/joint_states"]) == len(run["telemetry"])  # every cycle of both episodes
+    starts = [e.message for e in got["/lab/ubot1/events"] if "started" in e.message]
+    assert [s.split()[1] for s in starts] == ["ep-r1", "ep-r2"]
+
+
+def test_report_mcap_refusals_write_nothing(tmp_path, capsys):
+    from ersac_hil.cli import main
+    from ersac_hil.daemon.store import Store
+    db = tmp_path / "ersac.db"
+    with Store(db) as store:
+        store.create_run("run1", "ubot1", "bracing", 5, {"theta0": [0.3]})
+    before = sorted(tmp_path.iterdir())
+    for argv, why in ((["--mcap", str(tmp_path / "no" / "x.mcap")], "--mcap: no directory"),
+                      (["--mcap", str(tmp_path / "x.mcap"), "--mcap-dir", str(tmp_path / "nowhere")], "--mcap-dir"),
+                      (["--mcap-dir", str(tmp_path)], "--mcap-dir needs --mcap")):
+        assert main(["report", "run1", "--db", str(db), *argv]) == 2
+        assert why in capsys.readouterr().err
+    assert sorted(tmp_path.iterdir()) == before

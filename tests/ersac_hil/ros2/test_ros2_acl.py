@@ -1,0 +1,75 @@
+"""The roles' access control for ROS 2 (``ersac_hil.roles.ros2_rules``) on a real router as
+``certs init`` configures it: the agent's node publishes and declares its tokens, observers and
+operators read them, the daemon sees nothing and an observer cannot publish."""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from ersac_hil.certs import init_certs
+from ersac_hil.roles import ROLES, access_control
+from ersac_hil.ros2 import messages, names
+from ersac_hil.ros2.bridge import Ros2Node
+from ersac_hil.ros2.options import Ros2Options
+from ersac_hil.zenoh_session import EmbeddedRouter, ZenohOptions, free_tcp_port, resolve_config, session_scope
+
+HOST = "127.0.0.11"
+TIMEOUT = 10.0
+
+
+@pytest.fixture(scope="module")
+def deployment(tmp_path_factory):
+    certs = init_certs(tmp_path_factory.mktemp("ros2-acl"), router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
+    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
+                                              mode="router")):
+        yield certs
+
+
+def _session(deployment, role: str):  # noqa: ANN001
+    return session_scope(resolve_config(ZenohOptions(config_file=str(deployment.configs[role]))))
+
+
+def test_the_rules_give_ros2_to_the_agent_and_reading_to_operators_and_observers():
+    acl = access_control(ros_domain=4)
+    by_subject = {p["subjects"][0]: {r for r in p["rules"] if "-ros2-" in r} for p in acl["policies"]}
+    assert {role for role in ROLES if by_subject.get(role)} == {"agent", "operator", "observer"}
+    rules = {r["id"]: r for r in acl["rules"]}
+    agent = [rules[i] for i in by_subject["agent"]]
+    assert {(r["flows"][0], m, k) for r in agent for m in r["messages"] for k in r["key_exprs"]} == {
+        ("ingress", "put", "4/**"), ("ingress", "liveliness_token", "@ros2_lv/4/**")}
+
+
+def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment):
+    got: dict[str, list] = {"observer": [], "daemon": [], "operator": []}
+    with (_session(deployment, "agent") as agent, _session(deployment, "observer") as observer,
+          _session(deployment, "daemon") as daemon, _session(deployment, "operator") as operator):
+        subs = [s.declare_subscriber("0/**", lambda sample, role=role: got[role].append(str(sample.key_expr)))
+                for role, s in (("observer", observer), ("daemon", daemon), ("operator", operator))]
+        node = Ros2Node.declare(agent, Ros2Options(), "ubot1")
+        try:
+            deadline = time.monotonic() + TIMEOUT
+            while not (got["observer"] and got["operator"]) and time.monotonic() < deadline:
+                node.put("episode", b"\x00\x01\x00\x00")
+                time.sleep(0.05)
+            assert got["observer"] and got["operator"]
+            key = got["observer"][0]
+            assert key.startswith("0/ubot1/episode/diagnostic_msgs::msg::dds_::DiagnosticStatus_/RIHS01_")
+            tokens = [names.parse_token(str(r.ok.key_expr)) for r in observer.liveliness().get("@ros2_lv/0/**", timeout=2)]
+            assert {t.kind for t in tokens} == {"NN", "MP"}
+            assert {t.topic for t in tokens if t.kind == "MP"} == {f"/ubot1/{t}" for t in messages.TOPICS}
+            assert list(daemon.liveliness().get("@ros2_lv/0/**", timeout=2)) == []
+            # an observer's put is dropped at the router: the operator never hears it
+            heard = len(got["operator"])
+            for _ in range(20):
+                observer.put("0/ubot1/joint_states/fake", b"x")
+            node.put("episode", b"\x00\x01\x00\x00")  # a later sample of the agent's does arrive
+            deadline = time.monotonic() + TIMEOUT
+            while len(got["operator"]) == heard and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert "0/ubot1/joint_states/fake" not in got["operator"]
+        finally:
+            node.close()
+            for s in subs:
+                s.undeclare()
+    assert got["daemon"] == []
