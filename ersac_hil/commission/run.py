@@ -160,16 +160,24 @@ def _board_axis(axis: Axis, sdo, od) -> tuple[DriveLimits, str]:  # noqa: ANN001
 
 
 def _cia402_axis(axis: Axis, sdo, od) -> tuple[DriveLimits, str]:  # noqa: ANN001
-    def read(index: int, sub: int = 0) -> int | None:
-        return read_value(sdo, od, index, sub) if index in od else None
+    def read(index: int, sub: int = 0, unlimited: bool = False) -> int | None:
+        if index not in od:
+            return None
+        raw = read_value(sdo, od, index, sub)
+        var = od[index][sub] if hasattr(od[index], "subindices") else od[index]
+        if unlimited and raw is not None and raw in (var.min, var.max, -(1 << 31), (1 << 31) - 1):
+            return None  # a software position limit at the object's full range: none set
+        return raw
 
     increments = axis.encoder_counts or read(P402.ENCODER_RESOLUTION, 1) or 1
     scaling = DriveScaling(gear=axis.gear, increments=float(increments),
                            rated_current=(read(P402.RATED_CURRENT) or 0) / 1000.0,
                            rated_torque=(read(P402.RATED_TORQUE) or 0) / 1000.0)
     max_current, max_torque = read(P402.MAX_CURRENT), read(P402.MAX_TORQUE)
-    lo, hi = read(P402.SOFTWARE_POSITION_LIMIT, 1), read(P402.SOFTWARE_POSITION_LIMIT, 2)
-    position = (scaling.position(lo), scaling.position(hi)) if lo is not None and hi is not None and (lo or hi) else None
+    lo = read(P402.SOFTWARE_POSITION_LIMIT, 1, True)
+    hi = read(P402.SOFTWARE_POSITION_LIMIT, 2, True)
+    position = None if (lo is None and hi is None) or (lo == 0 and hi == 0) else (  # 0, 0: none (CiA 402)
+        -math.inf if lo is None else scaling.position(lo), math.inf if hi is None else scaling.position(hi))
     limits = DriveLimits(
         axis.name,
         current=scaling.current(max_current) if max_current is not None and scaling.rated_current else None,
@@ -180,7 +188,9 @@ def _cia402_axis(axis: Axis, sdo, od) -> tuple[DriveLimits, str]:  # noqa: ANN00
     status, volts = read(P402.STATUSWORD), read(P402.DC_LINK_VOLTAGE)
     return limits, (f"axis {axis.name:<15} position {_f(None if q is None else scaling.position(q))} rad  "
                     f"velocity {_f(None if qd is None else scaling.velocity(qd))} rad/s  statusword "
-                    f"0x{int(status or 0):04X}  DC link {_f(None if volts is None else volts / 1000.0)} V")
+                    f"0x{int(status or 0):04X}  DC link {_f(None if volts is None else volts / 1000.0)} V  "
+                    f"(limits: current {_f(limits.current)} A, torque {_f(limits.torque)} N m, position "
+                    f"[{_f(position[0] if position else None)}, {_f(position[1] if position else None)}] rad)")
 
 
 def _f(x: float | None) -> str:
