@@ -1,6 +1,7 @@
-"""Generate the DBC of the bus (protocol/can/dbc/<robot>.dbc) from the EDS files: every PDO of
-every device with its signals in physical units, and the CANopen frames around them (NMT, SYNC,
-heartbeats, EMCY) named.
+"""Generate the DBC of the bus of every shipped robot description (protocol/robots/<name>.toml
+-> protocol/can/dbc/<name>.dbc) from its nodes and their EDS files: every PDO of every device
+with its signals in physical units, and the CANopen frames around them (NMT, SYNC, heartbeats,
+EMCY) named.
 
 With it `cantools decode`, asammdf and PlotJuggler decode the traces of
 ``ersac-hil agent --record-can`` (BLF/ASC) without reading the EDS files. Each signal's factor
@@ -12,6 +13,7 @@ from what this writes (`--check`).
 """
 from __future__ import annotations
 
+import math
 import re
 import sys
 from collections import OrderedDict
@@ -23,15 +25,14 @@ from cantools.database.can import Bus, Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
 from protocol.can import cobid
-from protocol.can.busconfig import DEFAULT_BITRATE
-from protocol.can.devices import AGENT_NODE_ID, DEVICES, Device, object_dictionary
+from protocol.can.devices import Device, object_dictionary
 from protocol.can.objects import Control, EmcyCode, Index, Status
 from protocol.can.pdo import PdoEntry, PdoSpec, pdo_maps
+from protocol.robot import RobotDescription, load_description
+from protocol.robot.load import shipped_names
 
 OUT = Path(__file__).resolve().parents[1] / "protocol" / "can" / "dbc"
 AGENT = "agent"
-SYNC_PERIOD_MS = 5
-"""The cycle time written for the synchronous PDOs and SYNC (GenMsgCycleTime)."""
 
 NMT_COMMANDS = {1: "start", 2: "stop", 128: "enter_pre_operational", 129: "reset_node",
                 130: "reset_communication"}
@@ -50,7 +51,26 @@ def _choices(table: dict[int, str]) -> OrderedDict:
     return OrderedDict(sorted((code, snake(name)) for code, name in table.items()))
 
 
-def _signal(dev: Device, entry: PdoEntry, start: int, receivers: list[str]) -> Signal:
+def _cia402_scale(description: RobotDescription, dev: Device, index: int) -> tuple[float, str] | None:
+    """Joint-side SI scaling of a CiA 402 drive's position, velocity, torque and current
+    objects (their EDS counts are drive units): encoder increments and gear from the
+    description's axis, rated torque/current (0x6076 mN m, 0x6075 mA) from the EDS."""
+    axis = next((a for a in description.axes if a.node == dev.name), None)
+    if axis is None or axis.profile != "cia402":
+        return None
+    od = object_dictionary(dev)
+    if index in (0x6064, 0x607A, 0x606C) and axis.encoder_counts:
+        per_count = 2 * math.pi / (axis.encoder_counts * axis.gear)
+        return per_count, "rad/s" if index == 0x606C else "rad"
+    if index in (0x6071, 0x6077) and 0x6076 in od:
+        return float(od[0x6076].default) * 1e-6 * axis.gear, "N m"
+    if index == 0x6078 and 0x6075 in od:
+        return float(od[0x6075].default) * 1e-6, "A"
+    return None
+
+
+def _signal(description: RobotDescription, dev: Device, entry: PdoEntry, start: int,
+            receivers: list[str]) -> Signal:
     od = object_dictionary(dev)
     obj = od[entry.index]
     var = obj if isinstance(obj, ODVariable) else obj[entry.subindex]
@@ -60,33 +80,37 @@ def _signal(dev: Device, entry: PdoEntry, start: int, receivers: list[str]) -> S
         joints = dev.joints or dev.axes
         name = f"{joints[entry.subindex - 1]}_{snake(obj.name)}"
     signed = var.data_type in (0x02, 0x03, 0x04)
-    factor = float(var.factor) if var.unit else 1.0
+    factor, unit = (float(var.factor), var.unit) if var.unit else (1.0, "")
+    drive = _cia402_scale(description, dev, entry.index)
+    if drive is not None:
+        factor, unit = drive
     raw_min = var.min if var.min is not None else (-(1 << (entry.bits - 1)) if signed else 0)
     raw_max = var.max if var.max is not None else ((1 << (entry.bits - 1)) - 1 if signed else (1 << entry.bits) - 1)
     comment = f"0x{entry.index:04X}:{entry.subindex} {var.name}"
     bits = BIT_WORDS.get(entry.index)
-    if bits is not None:
+    if bits is not None and dev.profile != "cia402":
         comment += " (bits: " + ", ".join(f"{b.value.bit_length() - 1} {b.name}" for b in bits) + ")"
-    elif not var.unit and var.description:
+    elif drive is not None:
+        comment += f" (EDS: {var.description}; joint side)"
+    elif not unit and var.description:
         comment += f" ({var.description})"
     return Signal(name, start, entry.bits, "little_endian", signed,
                   conversion=BaseConversion.factory(scale=factor, offset=0),
-                  minimum=raw_min * factor, maximum=raw_max * factor, unit=var.unit or None,
+                  minimum=raw_min * factor, maximum=raw_max * factor, unit=unit or None,
                   comment=comment, receivers=receivers)
 
 
-def _pdo(spec: PdoSpec) -> Message:
-    dev = next(d for d in DEVICES if d.name == spec.device)
+def _pdo(description: RobotDescription, dev: Device, spec: PdoSpec, cycle_ms: int) -> Message:
     tpdo = spec.direction == "tpdo"
     sender, receiver = (dev.name, AGENT) if tpdo else (AGENT, dev.name)
     signals, start = [], 0
     for entry in spec.entries:
-        signals.append(_signal(dev, entry, start, [receiver]))
+        signals.append(_signal(description, dev, entry, start, [receiver]))
         start += entry.bits
     when = "synchronous, every SYNC" if spec.synchronous else f"transmission type {spec.transmission_type}"
     return Message(spec.cob_id, f"{dev.name}_{spec.direction.upper()}{spec.number}", spec.length, signals,
                    comment=f"{spec.direction.upper()}{spec.number} of {dev.name} (node 0x{dev.node_id:02X}), {when}",
-                   senders=[sender], cycle_time=SYNC_PERIOD_MS if spec.synchronous else None)
+                   senders=[sender], cycle_time=cycle_ms if spec.synchronous else None)
 
 
 def _heartbeat(name: str, node_id: int) -> Message:
@@ -107,8 +131,12 @@ def _emcy(dev: Device) -> Message:
                    comment=f"EMCY of {dev.name} (node 0x{dev.node_id:02X})", senders=[dev.name])
 
 
-def database(devices: tuple[Device, ...] = DEVICES, bus_name: str = "ubot5") -> Database:
-    nodes = [Node(AGENT, comment=f"NMT master and SYNC producer (heartbeat node 0x{AGENT_NODE_ID:02X})")]
+def database(description: RobotDescription) -> Database:
+    """The DBC of ``description``'s bus (its devices, bit rate, SYNC period, agent node-id)."""
+    devices, bus = description.devices, description.bus
+    cycle_ms = round(bus.sync_period_ms)
+    agent_node_id = bus.agent_node_id
+    nodes = [Node(AGENT, comment=f"NMT master and SYNC producer (heartbeat node 0x{agent_node_id:02X})")]
     nodes += [Node(d.name, comment=f"node 0x{d.node_id:02X}, {d.eds}"
                    + (" (simulated benches only)" if d.simulated_only else "")) for d in devices]
     nmt = Message(cobid.NMT, "nmt", 2, [
@@ -117,32 +145,28 @@ def database(devices: tuple[Device, ...] = DEVICES, bus_name: str = "ubot5") -> 
         Signal("node_id", 8, 8, comment="0: every node", receivers=[d.name for d in devices])],
         comment="NMT node control", senders=[AGENT])
     sync = Message(cobid.SYNC, "sync", 0, [], comment="SYNC (no counter): one control cycle",
-                   senders=[AGENT], cycle_time=SYNC_PERIOD_MS)
+                   senders=[AGENT], cycle_time=cycle_ms)
     messages = [nmt, sync]
     for d in devices:
-        messages += [_pdo(p) for p in pdo_maps(d)]
+        messages += [_pdo(description, d, p, cycle_ms) for p in pdo_maps(d) if p.entries]
         if Index.COB_ID_EMCY in object_dictionary(d):
             messages.append(_emcy(d))
         messages.append(_heartbeat(d.name, d.node_id))
-    messages.append(_heartbeat(AGENT, AGENT_NODE_ID))
+    messages.append(_heartbeat(AGENT, agent_node_id))
     messages.sort(key=lambda m: m.frame_id)
-    return Database(messages=messages, nodes=nodes, buses=[Bus(bus_name, baudrate=DEFAULT_BITRATE)],
-                    version="generated by tools/gen_dbc.py from protocol/can/eds")
+    return Database(messages=messages, nodes=nodes, buses=[Bus(description.name, baudrate=bus.bitrate)],
+                    version=f"{description.name}: generated by tools/gen_dbc.py from its description and EDS files")
 
 
-def render(devices: tuple[Device, ...] = DEVICES, bus_name: str = "ubot5") -> str:
-    return database(devices, bus_name).as_dbc_string().replace("\r\n", "\n")
-
-
-TARGETS: dict[str, tuple[Device, ...]] = {"ubot5": DEVICES}
-"""One DBC per robot: file stem -> its devices."""
+def render(description: RobotDescription) -> str:
+    return database(description).as_dbc_string().replace("\r\n", "\n")
 
 
 def main(check: bool = False) -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     stale = []
-    for stem, devices in TARGETS.items():
-        text, path = render(devices, stem), OUT / f"{stem}.dbc"
+    for stem in shipped_names():  # one DBC per shipped description
+        text, path = render(load_description(stem)), OUT / f"{stem}.dbc"
         if check:
             if not path.exists() or path.read_text() != text:
                 stale.append(path.name)
