@@ -58,7 +58,7 @@ def _daemon(args: argparse.Namespace) -> int:
     flags: dict[str, Any] = {
         "robot": args.robot[0] if args.robot else None,
         "fleet": tuple(args.robot[1:]) if args.robot and len(args.robot) > 1 else None,
-        "batch": args.batch, "interleave_every": args.interleave_every, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
+        "batch": args.batch, "interleave_every": args.interleave_every, "learner": args.learner, "prior": args.prior, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
         "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
         "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
         "zenoh": tuple(args.zenoh) if args.zenoh else None, "zenoh_config": args.zenoh_config,
@@ -306,8 +306,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="perturbations per update, run in parallel on the fleet (default 1: the paper's)")
     p.add_argument("--interleave-every", dest="interleave_every", type=int, metavar="K",
                    help="interleaved offline search: after every K-th update move to the local argmin "
-                        "of F~ when the critic is confident of the gain (default 0: off, the paper's "
-                        "Algorithm 1; docs/learner.md)")
+                        "of F~ when the critic is confident of the gain (default: the --learner's, "
+                        "select 1, paper and guarded 0: off; docs/learner.md)")
+    p.add_argument("--learner", help="named learner settings: paper (Algorithm 1), guarded (+ move guard), "
+                                      "select (+ interleaved search, final offline selection); default: "
+                                      "bracing select, lifting guarded (docs/learner.md)")
+    p.add_argument("--prior", metavar="PATH",
+                   help="simulator prior of a new run: a landscape JSON, a reproduce directory or a store "
+                        "of simulated episodes of the task; start from its optimum for kappa, drop it if "
+                        "the robot's warm-up episodes disagree (docs/learner.md)")
     p.add_argument("--prefix", help="key prefix (default ersac)")
     p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
     p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")

@@ -63,10 +63,10 @@ class ConfigError(ValueError):
 #: Fields that define a learning run (stored with it; a resumed run keeps the stored ones).
 LEARNER_FIELDS: tuple[str, ...] = (
     "task", "theta0", "sigma", "eta", "epsilon", "lr_range", "kappa", "weights", "seed", "batch",
-    "interleave_every",
+    "interleave_every", "learner",
 )
 #: The value of a learner field a run stored before the field existed.
-LEGACY_SETTINGS: dict[str, Any] = {"batch": 1, "interleave_every": 0}
+LEGACY_SETTINGS: dict[str, Any] = {"batch": 1, "interleave_every": 0, "learner": "guarded"}
 #: One key chunk naming robots: a name or a pattern with ``*`` / ``$*`` (e.g. ``ubot$*``).
 FLEET_PATTERN = re.compile(r"\*|(?:[A-Za-z0-9_.\-]|\$\*){1,64}")
 class TaskDefaults(msgspec.Struct, frozen=True):
@@ -126,7 +126,14 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             the average of their eq. 10 terms (1: the paper's Algorithm 1).
         interleave_every: interleaved offline/online search (docs/learner.md): after every
             k-th update theta may move to the local argmin of F~ on that update's critic;
-            0 (default): off, the paper's Algorithm 1.
+            0: off, the paper's Algorithm 1; ``None``: the learner preset's.
+        prior: a simulator prior for a new run (``ersac-hil daemon --prior PATH``: a landscape,
+            a ``reproduce`` directory or a store; ``daemon/prior.py``): the run starts from the
+            simulated optimum for its kappa (unless ``theta0`` is given) and drops the prior
+            when the robot's warm-up episodes disagree with it (docs/learner.md); read when the
+            run is created, stored with it, ignored on resume.
+        learner: named learner settings (``ersac_hil.learner.presets``: ``paper``, ``guarded``,
+            ``select``); ``None``: the task's default (bracing ``select``, lifting ``guarded``).
         prefix: key prefix (default ``ersac``).
         task: ``bracing`` or ``lifting`` (``protocol.zenoh.TASKS``).
         kappa: initial risk sensitivity in ``[KAPPA_MIN, KAPPA_MAX]``.
@@ -164,7 +171,9 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     robot: str
     fleet: tuple[str, ...] = ()
     batch: Annotated[int, Meta(ge=1, le=64)] = 1
-    interleave_every: Annotated[int, Meta(ge=0, le=1000)] = 0
+    interleave_every: Annotated[int, Meta(ge=0, le=1000)] | None = None
+    learner: str | None = None
+    prior: str | None = None
     task: TaskName = "bracing"
     kappa: Kappa = 0.0
     episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None
@@ -217,6 +226,13 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
                                             "expression of names (e.g. ubot2, *, ubot$*)") from None
         spec = get_task(self.task)
         defaults = task_defaults(self.task)
+        from ersac_hil.learner.presets import PRESETS, TASK_LEARNER
+        learner = TASK_LEARNER.get(spec.name, "guarded") if self.learner is None else self.learner
+        if learner not in PRESETS:
+            raise InvalidField("learner", f"unknown learner {learner!r}; known: {', '.join(PRESETS)}")
+        set_("learner", learner)
+        if self.interleave_every is None:
+            set_("interleave_every", PRESETS[learner].interleave_every)
         set_("theta0", spec.check_theta(defaults.theta0 if self.theta0 is None else self.theta0, "theta0"))
         sigma = defaults.sigma if self.sigma is None else self.sigma
         if len(sigma) != spec.dim:
@@ -233,6 +249,12 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             spec.check_names(self.weights, "weights", complete=False)
             weights.update(self.weights)
         set_("weights", {k: weights[k] for k in spec.term_names})
+        if self.prior is not None:
+            from .prior import PriorError, load_prior
+            try:
+                load_prior(self.prior, spec.name, self.kappa, self.weights)
+            except PriorError as exc:
+                raise InvalidField("prior", str(exc)) from None
         from ersac_hil.zenoh_session import ZenohConfigError, resolve_config
         try:
             resolve_config(self.zenoh_options)

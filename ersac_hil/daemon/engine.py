@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ersac_hil.learner import ERSAC, CostWeights, InsufficientDataError
-from ersac_hil.learner.ersac import MAX_STEP
+from ersac_hil.learner.presets import LEGACY_LEARNER, preset
 from protocol.zenoh import get_task
 
 from .store import UpdateRecord
@@ -81,7 +81,7 @@ class Engine:
             lr_range=tuple(settings["lr_range"]),
             seed=int(settings["seed"]),
             weights=CostWeights(dict(settings["weights"])),
-            max_step=settings.get("max_step", MAX_STEP),
+            max_step=settings.get("max_step", preset(settings.get("learner", LEGACY_LEARNER)).max_step),
             interleave_every=int(settings.get("interleave_every", 0)),
         )
         return cls(task, learner)
@@ -176,6 +176,16 @@ class Engine:
             state=self.snapshot(), stamp_s=stamp_s)
 
     # ------------------------------------------------------------------ changes
+    @property
+    def min_observations(self) -> int:
+        """Episodes before the learner's first update (its warm-up)."""
+        return self._learner.min_observations
+
+    @property
+    def observed_costs(self) -> list[float]:
+        """The cost of every observation so far, in order (current weights)."""
+        return [float(c) for c in self._learner.observations.costs]
+
     def set_kappa(self, kappa: float) -> None:
         self._learner.kappa = float(kappa)
 
@@ -216,7 +226,7 @@ class Engine:
             raise NotEnoughData(str(exc)) from exc
         return out
 
-    def select(self, kappa: float, weights: Mapping[str, float] | None = None
+    def select(self, kappa: float, weights: Mapping[str, float] | None = None, pessimism: float = 0.0
                ) -> tuple[tuple[float, ...], float, float]:
         """Offline selection: argmin of F~ = J~ + kappa r~ in the data's trust region, under
         ``weights`` (default: the current ones; the learner's own weights are restored
@@ -226,7 +236,8 @@ class Engine:
         try:
             if temporary:
                 self.set_weights(weights)
-            sel = self._learner.select(float(kappa))
+            sel = self._learner.select(float(kappa), pessimism=pessimism) if pessimism else \
+                self._learner.select(float(kappa))
         except InsufficientDataError as exc:
             raise NotEnoughData(str(exc)) from exc
         finally:

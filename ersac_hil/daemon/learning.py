@@ -101,7 +101,44 @@ class LearningRun:
             self.n_episodes += len(proposals)
             self._proposal_open = False
             self._apply_pending_adopt()
+            if self.n_episodes == self.engine.min_observations and "prior" in self.run.settings:
+                self._check_prior()
+            if self.n_episodes >= self.budget:
+                self._final_selection()
         return update
+
+    def _check_prior(self) -> None:
+        """After the warm-up (every episode so far drawn around the prior's start): drop a
+        simulator prior the robot disagrees with, i.e. go on from the task's default start
+        (a theta change with source ``prior rejected: <why>``)."""
+        from ersac_hil.learner.prior import SimPrior
+
+        from .config import task_defaults
+        prior = SimPrior.from_dict(self.run.settings["prior"])
+        ok, why = prior.consistent(self.engine.observed_costs[: self.n_episodes])
+        if ok:
+            return
+        theta = task_defaults(self.run.task).theta0
+        self.engine.adopt(theta)
+        self.store.record_change(self.run_id, "theta", list(theta), f"prior rejected: {why}", self.n_updates)
+
+    def _final_selection(self) -> None:
+        """The learner preset's final policy (``presets.LearnerPreset.final_selection``): at a
+        kappa > 0 the offline selection of that kappa over the run's episodes (pessimism
+        kappa), adopted and recorded as a theta change (source ``final selection``) after the
+        last update."""
+        from ersac_hil.learner.presets import LEGACY_LEARNER, preset
+
+        from .engine import NotEnoughData
+        kappa = self.engine.kappa
+        if not preset(self.run.settings.get("learner", LEGACY_LEARNER)).final_selection or kappa <= 0:
+            return
+        try:
+            theta, _, _ = self.engine.select(kappa, pessimism=kappa)
+        except NotEnoughData:
+            return
+        self.engine.adopt(theta)
+        self.store.record_change(self.run_id, "theta", list(theta), "final selection", self.n_updates)
 
     def finish(self) -> None:
         self.store.set_run_status(self.run_id, "finished")

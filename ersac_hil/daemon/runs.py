@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from protocol.zenoh import get_task
+
 from .config import LEARNER_FIELDS, LEGACY_SETTINGS, RESUME_LATEST, RESUME_NEW, ConfigError, DaemonConfig
 from .engine import Engine
 from .store import RunNotFound, RunRecord, Store
@@ -127,6 +129,12 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         seed = config.seed if config.seed is not None else secrets.randbits(62)
         settings = {**config.learner_settings(), "seed": seed}
         settings["episodes"] = config.episodes_or_default
+        if config.prior is not None:
+            from .prior import load_prior
+            prior = load_prior(config.prior, config.task, config.kappa, config.weights)
+            settings["prior"] = prior.to_dict()
+            if "theta0" not in config.explicit:
+                settings["theta0"] = list(get_task(config.task).check_theta(prior.theta, "prior theta"))
         run = store.create_run(new_run_id(), config.robot, config.task, seed, settings)
         return run, config.with_learner_settings(run.settings), False
     stored = {**LEGACY_SETTINGS, **run.settings}

@@ -292,6 +292,11 @@ class ERSAC:
         return self._n_updates
 
     @property
+    def min_observations(self) -> int:
+        """Observations before the first update (warm-up tells only store them)."""
+        return self._min_obs
+
+    @property
     def n_observations(self) -> int:
         return len(self._observations)
 

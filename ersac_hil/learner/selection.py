@@ -83,6 +83,10 @@ class SelectionConfig:
     stopping tolerances."""
 
     radius: float
+    #: > 0: among the SLSQP result, the anchor and the region's observed points the one of
+    #: lowest F~ + pessimism sd(F~) wins, sd^2 = var(J~) + kappa^2 r~^2 var(g) / 4 (the
+    #: model's own uncertainty; docs/learner.md "The default learner"); 0: argmin of F~.
+    pessimism: float = 0.0
     n_starts: int = 5
     max_points: int = 150
     max_eval: int = 100
@@ -92,6 +96,8 @@ class SelectionConfig:
     def __post_init__(self) -> None:
         if not (isinstance(self.radius, (int, float)) and math.isfinite(self.radius) and self.radius > 0):
             raise InvalidInputError("radius must be finite and > 0")
+        if not (isinstance(self.pessimism, (int, float)) and math.isfinite(self.pessimism) and self.pessimism >= 0):
+            raise InvalidInputError("pessimism must be finite and >= 0")
         if self.n_starts < 1 or self.max_points < 3 or self.max_eval < 1:
             raise InvalidInputError("n_starts >= 1, max_points >= 3 and max_eval >= 1 required")
 
@@ -165,6 +171,19 @@ def select_policy(
         except CriticError as exc:
             raise InsufficientDataError(f"selection model fit failed: {exc}") from exc
         return minimise_on_fit(fit, bounds, kappa, anchor, config, region=region, avoid=avoid)
+
+
+def _least_pessimistic(fit: LocalFit, kappa: float, z: float, best: tuple, Xd: np.ndarray,
+                       feasible) -> tuple:  # noqa: ANN001
+    """Among ``best`` (the SLSQP result) and the feasible observed points ``Xd``, the one of
+    lowest F~ + z sd(F~) (SelectionConfig.pessimism)."""
+    cands = [best[1]] + [x for x in Xd if feasible(x)]
+    scores = []
+    for x in cands:
+        e = fit.estimate(x, kappa)
+        scores.append(e.F + z * math.sqrt(max(e.J_var, 0.0) + kappa**2 * e.r**2 * max(e.g_var, 0.0) / 4.0))
+    i = int(np.argmin(scores))
+    return best if i == 0 else (float(fit.estimate(cands[i], kappa).F), np.asarray(cands[i]).copy(), best[2], "pessimistic")
 
 
 def minimise_on_fit(
@@ -266,6 +285,8 @@ def minimise_on_fit(
                 best = (F_s, x_s, s, status)
 
         assert best is not None
+        if config.pessimism > 0:
+            best = _least_pessimistic(fit, kappa, config.pessimism, best, Xd, feasible)
         theta = best[1]
         e = fit.estimate(theta, kappa)
     return Selection(

@@ -68,7 +68,7 @@ def analyse(sizes: Sizes, out: Path, trials: TrialStore, say=print) -> dict[str,
     for spec in plan.bracing_runs(sizes):
         runs[f"{spec.kappa:g}"][spec.seed] = history(spec.db(out))
     seeds = sorted(runs["2"])
-    final = {k: [float(runs[k][s].theta_after[-1][0]) for s in seeds] for k in runs}
+    final = {k: [float(runs[k][s].final_policy[0]) for s in seeds] for k in runs}
     w = sizes.last_window
     damage = {k: [float(runs[k][s].damage[-w:].mean()) for s in seeds] for k in runs}
     p = paired(final["2"], final["0"])

@@ -28,7 +28,7 @@ from protocol.zenoh import KeySpace
 
 from .trials import TrialSpec, TrialStore, run_trial
 
-__all__ = ["RunSpec", "Worker", "Pool", "JobFailed", "Progress", "stored_run", "finished", "copy_store",
+__all__ = ["RunSpec", "Worker", "Pool", "JobFailed", "Progress", "stored_run", "finished", "copy_store", "physics_stack",
            "EPISODE_TIMEOUT_S"]
 
 #: Query timeout of one episode (a 6 s lifting episode takes 1-10 s of wall time under load).
@@ -55,6 +55,21 @@ class RunSpec:
 
     def db(self, out: Path) -> Path:
         return out / "runs" / f"{self.name}.db"
+
+
+def physics_stack(logs: Path, stop: threading.Event, say: Callable[[str], None], physics: Path | None,
+                  **kwargs: object) -> Stack:
+    """A ``Stack`` whose simulators run with ``--physics physics`` (docs/physics.md): a robot
+    that differs from its simulator; ``None``: a plain ``Stack``."""
+    if physics is None:
+        return Stack(logs, stop, say, **kwargs)
+    extra = ["--physics", str(Path(physics).resolve())]
+
+    class _PhysicsStack(Stack):
+        def launch(self, name: str, argv: list[str], *rest: object, **kw: object) -> object:
+            return super().launch(name, [*argv, *extra] if name.startswith("sim") else argv, *rest, **kw)
+
+    return _PhysicsStack(logs, stop, say, **kwargs)
 
 
 def stored_run(db: Path) -> tuple[RunRecord, int] | None:

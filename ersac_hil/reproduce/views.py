@@ -41,6 +41,17 @@ class History:
     def n(self) -> int:
         return len(self.cost)
 
+    @property
+    def final_policy(self) -> np.ndarray:
+        """The policy mean at the end of the run, (d,): a theta adopted after the last update
+        (the ``select`` learner's final selection, an operator's adoption), else the last
+        update's."""
+        n = len(self.theta_after)
+        for kind, value, at in reversed(self.changes):
+            if kind == "theta" and at >= n:
+                return np.asarray(value, dtype=float)
+        return self.policy_after(n)
+
     def policy_after(self, n: int) -> np.ndarray:
         """The policy mean after ``n`` updates (``theta0`` for n = 0), shape (d,)."""
         return self.theta0 if n == 0 else self.theta_after[n - 1]

@@ -22,7 +22,27 @@ ROOT = Path(__file__).resolve().parents[3]
 
 def test_every_learner_field_has_a_legacy_value_or_was_there_from_the_start():
     assert set(LEGACY_SETTINGS) <= set(LEARNER_FIELDS)
-    assert LEGACY_SETTINGS["interleave_every"] == 0 == DaemonConfig(robot="r").interleave_every
+    # a run stored before learners had names was made with the guarded rule, which lifting keeps
+    lifting = DaemonConfig(robot="r", task="lifting")
+    assert LEGACY_SETTINGS["interleave_every"] == 0 == lifting.interleave_every
+    assert LEGACY_SETTINGS["learner"] == "guarded" == lifting.learner
+
+
+def test_the_learner_preset_sets_the_defaults_and_an_explicit_interleave_wins():
+    bracing = DaemonConfig(robot="r")
+    assert (bracing.learner, bracing.interleave_every) == ("select", 1)
+    assert DaemonConfig(robot="r", learner="paper").interleave_every == 0
+    assert DaemonConfig(robot="r", interleave_every=5).interleave_every == 5
+    paper = {**DaemonConfig(robot="r", learner="paper", seed=1).learner_settings(), "seed": 1}
+    assert Engine.create("bracing", paper)._learner.get_state()["max_step"] is None
+    guarded = {**DaemonConfig(robot="r", learner="guarded", seed=1).learner_settings(), "seed": 1}
+    assert Engine.create("bracing", guarded)._learner.get_state()["max_step"] == 3.0
+
+
+@pytest.mark.parametrize("bad", ["Paper", "ersac", ""])
+def test_an_unknown_learner_is_refused_naming_the_known_ones(bad):
+    with pytest.raises(ConfigError, match="unknown learner .*known: paper, guarded, select"):
+        merge({}, {"robot": "r", "learner": bad})
 
 
 @settings(max_examples=25, deadline=None)

@@ -308,3 +308,25 @@ def test_replies_only_from_a_session_without_agent_token_are_bad_replies(router,
         for token in tokens:
             token.undeclare()
         impostor.close()
+
+
+@pytest.mark.parametrize("learner, kappa, selected", [("select", 2.0, True), ("select", 0.0, False),
+                                                      ("guarded", 2.0, False)])
+def test_the_select_learner_adopts_the_offline_selection_when_the_budget_is_spent(
+        router, agent_factory, daemon_factory, learner, kappa, selected):
+    name = f"fin{learner}{kappa:g}"
+    agent_factory(name)
+    daemon = daemon_factory(name, episodes=14, kappa=kappa, learner=learner)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    with Store(daemon.config.db, readonly=True) as store:
+        run = daemon.learning.run_id
+        changes = [c for c in store.changes(run) if c.kind == "theta"]
+        ups = store.updates(run)
+    assert len(ups) == 14
+    if not selected:
+        assert changes == []
+        return
+    (change,) = changes
+    assert change.source == "final selection" and change.n_updates == 14
+    theta, _, _ = daemon.learning.engine.select(2.0, pessimism=2.0)
+    assert list(theta) == change.value == list(daemon.learning.engine.theta)

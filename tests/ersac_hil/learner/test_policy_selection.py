@@ -90,3 +90,31 @@ def test_selection_needs_data_and_valid_options() -> None:
         L.select(1.0, radius=-1.0)
     with pytest.raises(InvalidInputError):
         L.select(1.0, bogus=3)
+
+
+def _upper(fit, x, kappa, z):  # noqa: ANN001, ANN202
+    e = fit.estimate(np.asarray(x, dtype=float), kappa)
+    return e.F + z * np.sqrt(max(e.J_var, 0.0) + kappa**2 * e.r**2 * max(e.g_var, 0.0) / 4.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_pessimistic_selection_stays_where_the_data_are(seed) -> None:
+    """Dense data on [0.2, 0.4], four points at 0.5-0.55: the plain argmin may sit at the thin
+    edge; with pessimism the result is the candidate of lowest F~ + z sd(F~) - never above
+    the plain argmin's bound - and an observed point or that argmin."""
+    rng = np.random.default_rng(seed)
+    xs = np.concatenate([rng.uniform(0.2, 0.4, 40), rng.uniform(0.5, 0.55, 4)])
+    L = learner_with_data(xs, seed)
+    plain = L.select(2.0, radius=0.1)
+    careful = L.select(2.0, radius=0.1, pessimism=2.0)
+    fit = L.local_critic.fit_ids(np.arange(len(xs)), local=False)
+    assert _upper(fit, careful.theta, 2.0, 2.0) <= _upper(fit, plain.theta, 2.0, 2.0) + 1e-9
+    assert np.allclose(careful.theta, plain.theta) or np.min(np.abs(xs - careful.theta[0])) < 1e-12
+    assert L.select(2.0, radius=0.1, pessimism=0.0).theta == pytest.approx(plain.theta)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
+def test_a_bad_pessimism_is_refused(bad) -> None:
+    L = learner_with_data(np.linspace(0.2, 0.4, 12))
+    with pytest.raises(InvalidInputError, match="pessimism"):
+        L.select(2.0, pessimism=bad)

@@ -1,0 +1,290 @@
+"""Learners on the real tasks through the real stack (prints figures; not a test).
+
+    .venv/bin/python bench/tasks.py learning --task bracing --kappas 2,0 --seeds 1-20 \
+        --methods default,paper --out bench-tasks
+    .venv/bin/python bench/tasks.py learning --task lifting --seeds 1-20 --out bench-tasks
+    .venv/bin/python bench/tasks.py peers --seeds 1-20 --out bench-tasks
+
+Every episode is an ``episode/run`` query to an agent of a simulator/agent pair started as in
+``ersac-hil reproduce`` (``ersac_hil.demo.Stack``, one pair by default: the machine's cores
+are shared); every ERSAC learning run is an ``ersac-hil daemon`` process with its own store
+(``ersac_hil.reproduce.runner.Pool``), so what is measured is what a user runs. The output
+directory is resumable: a finished run or a stored trial is never run again.
+
+``learning``: ERSAC runs, one per (method, kappa, run seed); a method is a set of daemon
+flags (``METHODS``). Bracing: final theta per run; runs within ``TOLERANCE`` of the mean +
+kappa std optimum of the Monte Carlo landscape (``LANDSCAPE``, 100 scenario seeds per theta
+through the stack, docs/reproduce.md; or ``--landscape FILE``, a ``bench/bracing_sweep.py
+--out`` ``landscape.json``); the damage rate of the final policies read off that landscape
+(linear between its grid points) against the optimum's; damage over each run's last 15
+episodes. Lifting: 10 test trials of the policy after 30 episodes per run (the scenario
+seeds of ``reproduce lifting``), success as there.
+
+``surrogate``: the same learners in-process on a cost drawn from the landscape (a damage
+Bernoulli of the landscape's rate, ``DAMAGE_COST`` each, on a normal base whose spread makes
+up the landscape's std; a fall below theta 0.2): seconds per run instead of a minute, for
+screening settings before measuring them through the stack. Final theta (the last iterate)
+and the final offline selection per method, kappa and seed.
+
+``peers``: CMA-ES (pycma; each candidate re-evaluated ``REPEATS`` times, scored mean + kappa
+std), mean-variance Bayesian optimisation in the style of RAHBO (GPs on the mean and on the
+log variance of ``REPEATS`` evaluations per point, lower confidence bound of mean + kappa
+std) and random search with re-evaluation, at equal episode budgets on the same stack (every
+evaluation an independent episode with the scenario seed the daemon would give the learner's
+episode of the same index): F(theta, 2) regret of the recommended policy after 15, 30, 45
+bracing episodes (against the landscape, interpolated), lifting success after 30. Prints a
+table and writes ``tasks.png``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from ersac_hil.reproduce import plan  # noqa: E402
+from ersac_hil.reproduce.lifting import success  # noqa: E402
+from ersac_hil.reproduce.runner import Pool, RunSpec, physics_stack  # noqa: E402
+from ersac_hil.reproduce.trials import TrialSpec, TrialStore  # noqa: E402
+from ersac_hil.reproduce.views import history  # noqa: E402
+
+#: The bracing landscape through the stack, 100 scenario seeds per theta (docs/reproduce.md):
+#: theta, mean J, std J, damage rate.
+LANDSCAPE = {
+    "theta": [0.20, 0.25, 0.30, 0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65, 0.70, 0.75, 0.80, 0.85, 0.90, 0.95, 1.00],
+    "mean": [198.4, 190.3, 182.1, 177.6, 175.0, 175.0, 173.5, 169.6, 165.9, 162.5, 164.0, 167.7, 190.1, 219.7,
+             242.8, 250.3, 244.5],
+    "std": [6.3, 5.5, 5.9, 7.6, 9.9, 16.1, 23.4, 29.9, 34.5, 39.5, 46.6, 52.5, 57.4, 47.9, 24.7, 18.8, 18.8],
+    "damage": [0, 0, 0, 0.01, 0.02, 0.08, 0.13, 0.18, 0.19, 0.20, 0.28, 0.34, 0.59, 0.83, 0.98, 1.00, 1.00],
+}
+#: "final theta within 0.1 of the optimum".
+TOLERANCE = 0.1
+#: Named ERSAC settings: extra ``ersac-hil daemon`` flags (docs/learner.md, "The default").
+METHODS: dict[str, tuple[str, ...]] = {
+    "default": (),
+    "paper": ("--learner", "paper"),
+    "guarded": ("--learner", "guarded"),
+}
+REPEATS = 3
+#: Cost of a damaged episode in the surrogate (the task's damage weight 10 x the broken arm's
+#: extra terms; sized so that mean and std of the landscape are both matched at 0.5-0.75).
+DAMAGE_COST = 90.0
+#: Learner settings screened in-process (``surrogate``): ERSAC keyword arguments, and whether
+#: the final policy is the offline selection (the ``select`` preset's final step).
+SURROGATE: dict[str, tuple[dict, bool]] = {
+    "paper": ({"max_step": None}, False),
+    "guarded": ({}, False),
+    "guarded+final-selection": ({}, True),
+    "interleaved": ({"interleave_every": 1}, False),
+    "select": ({"interleave_every": 1}, True),
+}
+
+
+@dataclass(frozen=True)
+class Landscape:
+    theta: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    damage: np.ndarray
+
+    @classmethod
+    def load(cls, path: str | None) -> Landscape:
+        if path is None:
+            d = LANDSCAPE
+        else:
+            raw = json.loads(Path(path).read_text())
+            rows = raw["rows"] if "rows" in raw else raw["landscape"]["rows"]
+            d = {"theta": [r["theta"] for r in rows], "mean": [r["mean"] for r in rows],
+                 "std": [r["std"] for r in rows], "damage": [r["damage"] for r in rows]}
+        return cls(*(np.asarray(d[k], dtype=float) for k in ("theta", "mean", "std", "damage")))
+
+    def F(self, theta: float, kappa: float) -> float:
+        return float(np.interp(theta, self.theta, self.mean + kappa * self.std))
+
+    def optimum(self, kappa: float) -> float:
+        return float(self.theta[np.argmin(self.mean + kappa * self.std)])
+
+    def damage_at(self, theta: float) -> float:
+        return float(np.interp(theta, self.theta, self.damage))
+
+
+def parse_seeds(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",")]
+
+
+def _stack(out: Path, stop: threading.Event, pairs: int, physics: str | None = None):  # noqa: ANN202
+    """The pairs' stack; with ``physics`` every simulator runs with ``--physics FILE``."""
+    return physics_stack(out / "logs", stop, lambda line: print(f"tasks: {line}", flush=True),
+                         None if physics is None else Path(physics), pairs=pairs)
+
+
+def run_spec(method: str, task: str, kappa: float, seed: int, episodes: int,
+             flags: Sequence[str] = ()) -> RunSpec:
+    return RunSpec(f"{method}-{task}-k{kappa:g}-s{seed}", task, kappa, seed, episodes, (*METHODS.get(method, ()), *flags))
+
+
+def learning(args: argparse.Namespace) -> dict:
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    seeds = parse_seeds(args.seeds)
+    kappas = [float(k) for k in args.kappas.split(",")] if args.task == "bracing" else [0.0]
+    episodes = args.episodes or (45 if args.task == "bracing" else 30)
+    methods = args.methods.split(",")
+    specs = [run_spec(m, args.task, k, s, episodes) for m in methods for k in kappas for s in seeds]
+    stack = _stack(out, stop, args.pairs, args.physics)
+    trials = TrialStore(out / "trials.db")
+    pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
+    t0, load0 = time.monotonic(), os.getloadavg()[0]
+    try:
+        pool.run(pool.learning_jobs(specs, out))
+        if args.task == "lifting":
+            sizes = plan.FULL
+            tests = [s for spec in specs for s in plan.test_trials(tuple(history(spec.db(out)).final_policy),
+                                                                   spec.seed, sizes)]
+            pool.run(pool.trial_jobs(tests, "lifting test"))
+    finally:
+        pool.close()
+        stack.close()
+    wall = time.monotonic() - t0
+    print(f"\n{len(specs)} runs, wall time {wall / 60:.1f} min, load average {load0:.1f} -> {os.getloadavg()[0]:.1f}")
+    result = {"task": args.task, "seeds": seeds, "wall_s": wall, "runs": {}}
+    land = Landscape.load(args.landscape)
+    for m in methods:
+        for k in kappas:
+            rows = [(s, history(run_spec(m, args.task, k, s, episodes).db(out))) for s in seeds]
+            if args.task == "bracing":
+                result["runs"][f"{m} k{k:g}"] = _bracing_table(m, k, rows, land)
+            else:
+                result["runs"][f"{m} k{k:g}"] = _lifting_table(m, rows, trials)
+    (out / f"learning-{args.task}.json").write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def _bracing_table(method: str, kappa: float, rows: list, land: Landscape) -> dict:
+    opt = land.optimum(kappa)
+    final = [float(h.final_policy[0]) for _, h in rows]
+    within = [abs(t - opt) <= TOLERANCE + 1e-9 for t in final]
+    dmg = [land.damage_at(t) for t in final]
+    last = [float(h.damage[-15:].mean()) for _, h in rows]
+    print(f"\nbracing, {method}, kappa {kappa:g}: optimum {opt:.2f} (mean + {kappa:g} std, landscape); "
+          f"final theta within {TOLERANCE} in {sum(within)}/{len(rows)}")
+    print("| run seed | " + " | ".join(str(s) for s, _ in rows) + " |")
+    print("|---" * (len(rows) + 1) + "|")
+    print("| final theta | " + " | ".join(f"{'**' if not w else ''}{t:.3f}{'**' if not w else ''}"
+                                          for t, w in zip(final, within)) + " |")
+    print(f"final theta median {np.median(final):.3f} [{np.percentile(final, 25):.3f}-{np.percentile(final, 75):.3f}]; "
+          f"damage rate of the final policies (landscape) {np.mean(dmg):.3f} against {land.damage_at(opt):.3f} at "
+          f"the optimum; F(theta, {kappa:g}) regret median {np.median([land.F(t, kappa) - land.F(opt, kappa) for t in final]):.1f}; "
+          f"damage over the last 15 episodes {np.mean(last):.3f}; damage while learning {np.mean([h.damage.mean() for _, h in rows]):.3f}")
+    return {"optimum": opt, "final_theta": final, "within": int(sum(within)), "damage_final_policy": float(np.mean(dmg)),
+            "damage_optimum": land.damage_at(opt), "damage_last_15": float(np.mean(last)),
+            "damage_learning": float(np.mean([h.damage.mean() for _, h in rows]))}
+
+
+def _lifting_table(method: str, rows: list, trials: TrialStore) -> dict:
+    rates = []
+    for s, h in rows:
+        got = trials.get(plan.test_trials(tuple(h.final_policy), s, plan.FULL))
+        rates.append(float(np.mean([success(t) for t in got.values()])) if got else float("nan"))
+    print(f"\nlifting, {method}: success of the policy after {rows[0][1].n} episodes (10 test trials each): "
+          f"pooled {100 * np.nanmean(rates):.1f} %; per seed " + ", ".join(f"{s}: {100 * r:.0f}" for (s, _), r in zip(rows, rates)))
+    return {"success_per_seed": rates, "success_pooled": float(np.nanmean(rates))}
+
+
+def surrogate_cost(theta: float, land: Landscape, rng: np.random.Generator) -> float:
+    """One episode's cost from the landscape (see the module doc)."""
+    if theta < land.theta[0]:  # below 0.2 the body collapses onto the floor
+        return float(np.interp(theta, [0.0, 0.15, land.theta[0]], [300.0, 290.0, land.mean[0]])
+                     + land.std[0] * rng.standard_normal())
+    m, s, p = (float(np.interp(theta, land.theta, a)) for a in (land.mean, land.std, land.damage))
+    base = math.sqrt(max(s * s - DAMAGE_COST**2 * p * (1 - p), 16.0))
+    return m - DAMAGE_COST * p + base * rng.standard_normal() + DAMAGE_COST * float(rng.random() < p)
+
+
+def _surrogate_run(job: tuple[str, float, int, str | None]) -> tuple[str, float, int, float, float]:
+    from threadpoolctl import threadpool_limits
+
+    from ersac_hil.daemon.config import task_defaults
+    from ersac_hil.learner import ERSAC
+
+    method, kappa, seed, path = job
+    land = Landscape.load(path)
+    d = task_defaults("bracing")
+    kwargs, final_selection = SURROGATE[method]
+    with threadpool_limits(1, user_api="blas"):
+        L = ERSAC(d.theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed, **kwargs)
+        rng = np.random.default_rng(10_000 + seed)
+        for _ in range(d.episodes):
+            x = L.ask()
+            L.tell(x, surrogate_cost(float(x[0]), land, rng))
+        last = float(L.theta[0])
+        sel = float(L.select(kappa, pessimism=kappa).theta[0]) if final_selection and kappa > 0 else last
+    return method, kappa, seed, last, sel
+
+
+def surrogate(args: argparse.Namespace) -> None:
+    import multiprocessing as mp
+    seeds, kappas = parse_seeds(args.seeds), [float(k) for k in args.kappas.split(",")]
+    methods = args.methods.split(",")
+    jobs = [(m, k, s, args.landscape) for m in methods for k in kappas for s in seeds]
+    t0 = time.monotonic()
+    with mp.get_context("fork").Pool(2) as pool:
+        res = list(pool.imap(_surrogate_run, jobs))
+    land = Landscape.load(args.landscape)
+    print(f"surrogate: {len(jobs)} runs of {len(seeds)} seeds, {time.monotonic() - t0:.0f} s")
+    print("| method | kappa | optimum | final policy within 0.1 | median [IQR] | damage rate of the final policies (optimum) |")
+    print("|---|---|---|---|---|---|")
+    for m in methods:
+        for k in kappas:
+            opt = land.optimum(k)
+            final = np.array([r[4] for r in res if r[0] == m and r[1] == k])
+            print(f"| {m} | {k:g} | {opt:.2f} | {int(np.sum(np.abs(final - opt) <= TOLERANCE + 1e-9))}/{len(final)} | "
+                  f"{np.median(final):.2f} [{np.percentile(final, 25):.2f}-{np.percentile(final, 75):.2f}] | "
+                  f"{np.mean([land.damage_at(t) for t in final]):.3f} ({land.damage_at(opt):.3f}) |")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    lp = sub.add_parser("learning", help="ERSAC learning runs (daemon processes)")
+    lp.add_argument("--task", choices=["bracing", "lifting"], default="bracing")
+    lp.add_argument("--kappas", default="2,0")
+    lp.add_argument("--seeds", default="1-20")
+    lp.add_argument("--episodes", type=int, default=None)
+    lp.add_argument("--methods", default="default")
+    sp = sub.add_parser("surrogate", help="ERSAC settings in-process on a landscape-drawn cost (screening)")
+    sp.add_argument("--kappas", default="2,0")
+    sp.add_argument("--seeds", default="0-19")
+    sp.add_argument("--methods", default=",".join(SURROGATE))
+    for p in (lp, sp):
+        p.add_argument("--landscape", default=None, help="landscape.json of bench/bracing_sweep.py --out")
+    lp.add_argument("--out", default="bench-tasks")
+    lp.add_argument("--pairs", type=int, default=1)
+    lp.add_argument("--physics", default=None, help="the simulators' --physics FILE (docs/physics.md)")
+    args = ap.parse_args(argv)
+    known = SURROGATE if args.what == "surrogate" else METHODS
+    unknown = [m for m in args.methods.split(",") if m and m not in known]
+    if unknown:
+        ap.error(f"unknown method {unknown[0]!r}; known: {', '.join(known)}")
+    (surrogate if args.what == "surrogate" else learning)(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
