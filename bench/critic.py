@@ -388,8 +388,11 @@ def plot(summary: dict, variants: list[str], sizes: tuple[int, ...], path: str) 
         for ax in axes[row]:
             ax.set_xlabel("points in the fit (n)")
             ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
+    for row in range(len(variants)):  # a few fits far worse than the GP would set a linear scale
+        axes[row, 3].set_yscale("symlog", linthresh=10.0)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="center right", fontsize=8, frameon=False,
+               title="problem")
+    fig.tight_layout(rect=(0, 0, 0.9, 1))  # the legend beside the panels, off the data
     fig.savefig(path, dpi=80)
     print(f"\nplot written to {path}")
 

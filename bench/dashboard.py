@@ -13,9 +13,10 @@ animation frame). Prints p50 / p99 / max of:
 * learner publication -> event in the page: the same without drawing;
 * learner publication -> a plain Zenoh subscriber in this process: the floor (baseline, same run).
 
-All clocks are this machine's wall clock. Writes a histogram PNG (``--plot``).
+All clocks are this machine's wall clock. Writes the cumulative distributions as a PNG
+(``--plot``) and, with ``--screenshot PNG``, a screenshot of the page at the end of the run.
 
-    python bench/dashboard.py [--episodes 30] [--seed 1] [--plot dashboard_latency.png]
+    python bench/dashboard.py [--episodes 30] [--seed 1] [--plot dashboard_latency.png] [--screenshot dashboard.png]
 """
 from __future__ import annotations
 
@@ -51,7 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--plot", default="dashboard_latency.png", help="histogram PNG ('' = none)")
+    parser.add_argument("--plot", default="dashboard_latency.png", help="latency PNG ('' = none)")
+    parser.add_argument("--screenshot", default="", metavar="PNG",
+                        help="also a screenshot of the page at the end of the run (docs/dashboard.png)")
     args = parser.parse_args(argv)
     reason = missing()
     if reason:
@@ -91,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
             demo.wait_for(r"^demo: stack up on", 60 + 30 * args.episodes)
             records = driver.execute_script("return window.dashboard.latency;")
             load = os.getloadavg()
+            if args.screenshot:  # Selenium's: chromium --screenshot never returns on this live page
+                driver.save_screenshot(args.screenshot)
+                print(f"screenshot in {Path(args.screenshot).resolve()}")
         finally:
             if driver is not None:
                 driver.quit()
@@ -112,15 +118,23 @@ def main(argv: list[str] | None = None) -> int:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        bins = np.linspace(0, max(max(agent), max(learner)) * 1.05, 40)
-        ax.hist(agent, bins, alpha=0.6, label="agent result -> drawn")
-        ax.hist(learner, bins, alpha=0.6, label="learner publication -> drawn")
+        fig, ax = plt.subplots(figsize=(7, 4.6), constrained_layout=True)
+        # cumulative distributions: two overlaid histograms of ~30 values hide each other
+        for values, label, colour in ((agent, "agent result -> point drawn", "tab:blue"),
+                                      (learner, "learner publication -> point drawn", "tab:orange"),
+                                      (floor_ms, "learner publication -> Zenoh subscriber", "tab:grey")):
+            v = np.sort(np.asarray(values, dtype=float))
+            if not v.size:
+                continue
+            ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", color=colour,
+                    label=f"{label} (median {np.median(v):.0f} ms)")
+            ax.plot(np.median(v), 0.5, "o", color=colour)
         ax.set_xlabel("latency [ms]")
-        ax.set_ylabel("episodes")
+        ax.set_ylabel("fraction of episodes")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
         ax.set_title(f"episode -> point on the dashboard ({len(records)} episodes, load {load[0]:.1f})")
-        ax.legend()
-        fig.tight_layout()
+        fig.legend(loc="outside lower center", fontsize=8, frameon=False)  # off the curves
         fig.savefig(args.plot, dpi=110)
         print(f"histogram in {Path(args.plot).resolve()}")
     return 0
