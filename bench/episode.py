@@ -29,6 +29,10 @@ Side by side with another checkout (an older main, its own venv or this one)::
 
     python bench/episode.py --baseline ../old-main [--baseline-bus remote] [--rounds 3] [--only zenoh]
 
+``--agent-args "..."`` adds flags to this checkout's agents only, so ``--baseline .`` with
+``--agent-args "--ros2 --record DIR"`` (and ``--busy-poll 0``, as the baseline side) measures
+the ROS 2 bridge and MCAP recording against the same stack without them.
+
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
 agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's
 (``--baseline-bus remote``: the other side over the loopback hub, for a main without CAN over
@@ -117,7 +121,7 @@ DIRECT = "direct"
 
 def processes(config: BusConfig | str | None, n: int, realtime: bool,
               checkout: Path | None = None, python: str = sys.executable,
-              busy_poll: float = 0.0) -> dict[str, list[EpisodeResult]]:
+              busy_poll: float = 0.0, agent_args: tuple[str, ...] = ()) -> dict[str, list[EpisodeResult]]:
     """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router;
     ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's), run by ``python``
     from ``checkout`` (default: this one); ``busy_poll``: both CAN-over-Zenoh buses' (s, 0: off)."""
@@ -142,7 +146,7 @@ def processes(config: BusConfig | str | None, n: int, realtime: bool,
             procs.append(sim)
             scheduling = [_ready(sim, "simulator: ")]
             agent = subprocess.Popen([python, "-m", "ersac_hil.cli", "agent", "--robot", ROBOT,
-                                      *bus_args, "--zenoh", router.endpoint, *extra],
+                                      *bus_args, "--zenoh", router.endpoint, *extra, *agent_args],
                                      stdout=subprocess.PIPE, text=True, cwd=checkout)
             procs.append(agent)
             scheduling.append(_ready(agent, "agent ready"))
@@ -205,7 +209,7 @@ def compare(args: argparse.Namespace) -> int:
             if backend == "virtual":
                 continue
             new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here,
-                                                   busy_poll=args.busy_poll))
+                                                   busy_poll=args.busy_poll, agent_args=args.agent_args))
             report(backend, new)
             if args.realtime:  # the physics follows the wall clock: episodes differ by design
                 continue
@@ -235,6 +239,8 @@ def main() -> int:
                         help="CAN over Zenoh: this checkout's buses poll S seconds after each sample "
                              f"(default {busy_poll_for(1):g} in lock-step, the demo's for one pair here; "
                              "0 in real time, where it gained nothing; 0 = off)")
+    parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), default=(),
+                        help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"")
     args = parser.parse_args()
     if args.busy_poll is None:
         args.busy_poll = 0.0 if args.realtime else busy_poll_for(1)

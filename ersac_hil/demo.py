@@ -82,6 +82,8 @@ class DemoConfig:
             module doc).
         fleet: simulator/agent pairs behind the daemon.
         batch: perturbations per update (``None``: ``fleet``).
+        ros2: the agents publish for ROS 2 (``agent --ros2``, docs/ros2.md) and record each
+            episode as ``OUT/mcap/<episode_id>.mcap``.
     """
 
     task: str = "bracing"
@@ -102,6 +104,7 @@ class DemoConfig:
     fleet: int = 1
     batch: int | None = None
     busy_poll: float | None = None
+    ros2: bool = False
 
 
 def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], None] = print) -> int:
@@ -116,7 +119,8 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
                   pairs=config.fleet, secure=config.secure, router_host=config.router_host,
                   agent_host=config.agent_host, can=config.can, fleet=True, busy_poll=config.busy_poll,
-                  series=out / "series")
+                  series=out / "series",
+                  agent_args=("--ros2", "--record", str(out / "mcap")) if config.ros2 else ())
     batch = config.fleet if config.batch is None else config.batch
     code = 1
     try:
@@ -195,7 +199,7 @@ def _demo(args: argparse.Namespace) -> int:
     config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
                         secure=args.secure, linger=args.linger, dashboard=args.dashboard,
                         dashboard_port=args.dashboard_port, can=args.can, fleet=args.fleet, batch=args.batch,
-                        busy_poll=args.busy_poll)
+                        busy_poll=args.busy_poll, ros2=args.ros2)
     return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
@@ -227,6 +231,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"CAN over Zenoh: the simulators' and agents' buses poll S seconds after each frame "
                         f"instead of sleeping (0 = off; default {BUSY_POLL_S} where the machine has a core "
                         f"for each polling bus, two per pair, else 0)")
+    p.add_argument("--ros2", action="store_true",
+                   help="the agent publishes for ROS 2 (rmw_zenoh key space, domain 0, /<robot>) and "
+                        "records each episode as OUT/mcap/<episode_id>.mcap (docs/ros2.md)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
     p.set_defaults(func=_demo, validate=_validate)

@@ -163,19 +163,9 @@ def render(description: RobotDescription) -> str:
 
 
 def main(check: bool = False) -> int:
-    OUT.mkdir(parents=True, exist_ok=True)
-    stale = []
-    for stem in shipped_names():  # one DBC per shipped description
-        text, path = render(load_description(stem)), OUT / f"{stem}.dbc"
-        if check:
-            if not path.exists() or path.read_text() != text:
-                stale.append(path.name)
-        else:
-            path.write_text(text)
-    if stale:
-        print("stale DBC files (run python tools/gen_dbc.py):", ", ".join(stale))
-        return 1
-    return 0
+    from generated import write_or_check  # tools/, beside this script
+    files = {OUT / f"{stem}.dbc": render(load_description(stem)) for stem in shipped_names()}
+    return write_or_check(files, check, "DBC files", "gen_dbc.py")
 
 
 if __name__ == "__main__":

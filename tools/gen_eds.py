@@ -329,20 +329,8 @@ def render(dev: Device) -> str:
 
 
 def main(check: bool = False) -> int:
-    OUT.mkdir(parents=True, exist_ok=True)
-    stale = []
-    for dev in devices():
-        text = render(dev)
-        path = OUT / dev.file
-        if check:
-            if not path.exists() or path.read_text() != text:
-                stale.append(dev.file)
-        else:
-            path.write_text(text)
-    if stale:
-        print("stale EDS files (run python tools/gen_eds.py):", ", ".join(stale))
-        return 1
-    return 0
+    from generated import write_or_check  # tools/, beside this script
+    return write_or_check({OUT / dev.file: render(dev) for dev in devices()}, check, "EDS files", "gen_eds.py")
 
 
 if __name__ == "__main__":

@@ -52,12 +52,14 @@ class Stack:
         busy_poll: seconds the simulators' and agents' CAN-over-Zenoh buses keep polling after
             each sample (``ZenohBus(busy_poll=...)``; 0: off; ``None``: :func:`busy_poll_for`).
         series: the agents write every episode's time series there (``agent --record-series``).
+        agent_args: further flags of every agent (``demo --ros2``: ``--ros2 --record DIR``).
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
                  router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "direct",
-                 fleet: bool = False, busy_poll: float | None = None, series: Path | None = None) -> None:
+                 fleet: bool = False, busy_poll: float | None = None, series: Path | None = None,
+                 agent_args: Sequence[str] = ()) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -70,6 +72,7 @@ class Stack:
         self._fleet = fleet
         self._can = can
         self._series = ["--record-series", str(series)] if series is not None else []
+        self._series += list(agent_args)
         self._busy_poll = busy_poll_for(pairs) if busy_poll is None else busy_poll
         logs.mkdir(parents=True, exist_ok=True)
 
