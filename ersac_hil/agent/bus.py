@@ -45,8 +45,10 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
+from ersac_hil.agent import configure
 from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeMissing,
                                     PdoTimeout, SdoTimeout)
+from ersac_hil.agent.policies import ArmImpedance, Spline
 from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands, Telemetry, TelemetryDecoder
 from ersac_hil.agent.tpdos import TpdoCollector
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
@@ -115,10 +117,14 @@ class AgentBus:
     """CANopen master of the uBot (see the module docstring). Not re-entrant: one
     caller thread drives ``cycle`` and the SDO helpers."""
 
+    cyclic: tuple[Device, ...] = CYCLIC
+    """The devices every SYNC cycle waits for (their heartbeats are checked before each SYNC)."""
+
     def __init__(self, config: BusConfig, devices: tuple[Device, ...] = DEVICES,
                  timing: BusTiming = BusTiming()) -> None:
         self.config, self.devices, self.timing = config, tuple(devices), timing
         self._by_name = {d.name: d for d in self.devices}
+        self._cyclic_names = tuple(d.name for d in self.cyclic)
         self.network: canopen.Network | None = None
         self.nodes: dict[str, canopen.RemoteNode] = {}
         self._heartbeat: HeartbeatProducer | None = None
@@ -145,12 +151,13 @@ class AgentBus:
         net = self.network
         rpdos, sizes = [], {}
         for dev in self.devices:
-            node = canopen.RemoteNode(dev.node_id, object_dictionary(dev))
+            node = self._node(dev)
             if not self.timing.realtime:  # a stalled simulator answers late (the module doc)
                 node.sdo.RESPONSE_TIMEOUT = max(node.sdo.RESPONSE_TIMEOUT, self.timing.lockstep_patience_s)
             net.add_node(node)
             node.tpdo.read(from_od=True)
             node.rpdo.read(from_od=True)
+            self._setup(node)
             node.emcy.add_callback(lambda e, name=dev.name: self._on_emcy(name, e))
             node.nmt.add_heartbeat_callback(lambda state, name=dev.name: self._on_heartbeat(name))
             self.nodes[dev.name] = node
@@ -166,7 +173,7 @@ class AgentBus:
             if dev in ACTUATED:
                 rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                           for n, m in node.rpdo.map.items() if m.enabled]
-        self._tpdos, self._encoder = TpdoCollector(sizes), CommandEncoder(rpdos)
+        self._tpdos, self._encoder = TpdoCollector(sizes), self._command_encoder(rpdos)
         intercept = getattr(net.notifier, "intercept", None)
         if intercept is not None:  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
             intercept(self._tpdos.take)
@@ -176,6 +183,39 @@ class AgentBus:
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
         return self
+
+    # -- what the drive profile decides (the uBot boards here; ``cia402.Cia402Bus``) ----------
+    def _node(self, dev: Device) -> canopen.RemoteNode:
+        """The master's node object of ``dev``."""
+        return canopen.RemoteNode(dev.node_id, object_dictionary(dev))
+
+    def _setup(self, node: canopen.RemoteNode) -> None:
+        """After the node's PDO maps were read from its dictionary, before the cyclic ones are
+        taken over by the cycle."""
+
+    def _command_encoder(self, rpdos: list) -> CommandEncoder:
+        """``Commands`` -> the RPDO frames of a cycle (``rpdos``: the boards' RPDOs)."""
+        return CommandEncoder(rpdos)
+
+    def _telemetry_decoder(self) -> TelemetryDecoder:
+        """The TPDO frames of a cycle -> ``Telemetry``."""
+        return TelemetryDecoder(tuple(self._tpdo_specs.values()))
+
+    def apply_impedance(self, impedance: ArmImpedance) -> None:
+        """Stiffness and damping of (shoulder, elbow) on both arms, before NMT start."""
+        configure.apply_impedance(self, impedance)
+
+    def download_spline(self, side: str, spline: Spline) -> None:
+        """Load ``spline`` for the arm ``side``; the commands' START_SPLINE rising edge starts it."""
+        configure.download_spline(self, configure.ARM_OF[side], spline)
+
+    def enable_drives(self) -> None:
+        """After NMT start, before the first cycle: the boards enable with the control word in
+        their RPDO (nothing to do here)."""
+
+    def disable_drives(self) -> None:
+        """At the end of an episode, before NMT pre-operational (the boards drop their torque
+        on it: nothing to do here)."""
 
     def close(self) -> None:
         if self._heartbeat is not None:
@@ -212,8 +252,8 @@ class AgentBus:
         with self._cond:
             seen = self._hb_seen
             seen[name] = time.monotonic()
-            if name in _CYCLIC_NAMES:
-                self._cyclic_oldest = min([seen.get(n, -math.inf) for n in _CYCLIC_NAMES])
+            if name in self._cyclic_names:
+                self._cyclic_oldest = min([seen.get(n, -math.inf) for n in self._cyclic_names])
 
     def heartbeat_ages(self) -> dict[str, float | None]:
         """Seconds since each device's last heartbeat (``None``: never heard)."""
@@ -238,22 +278,24 @@ class AgentBus:
         age = self.heartbeat_ages()[_name(device)]
         return age is not None and age <= self.timing.liveness_s
 
-    def check_heartbeats(self, devices: Iterable[Device | str] = CYCLIC) -> None:
-        """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing."""
+    def check_heartbeats(self, devices: Iterable[Device | str] | None = None) -> None:
+        """Raise ``HeartbeatLost`` for the first device whose heartbeat is stale or missing
+        (default: the cyclic devices)."""
         now, timeout = time.monotonic(), self.timing.liveness_s
-        if devices is CYCLIC and now - self._cyclic_oldest <= timeout:
+        if devices is None and now - self._cyclic_oldest <= timeout:
             return  # every cyclic node heard within the timeout (the oldest was)
-        names = _CYCLIC_NAMES if devices is CYCLIC else [_name(dev) for dev in devices]
+        names = self._cyclic_names if devices is None else [_name(dev) for dev in devices]
         with self._cond:
             seen = [(name, self._hb_seen.get(name)) for name in names]
         for name, heard in seen:
             if heard is None or now - heard > timeout:
                 raise HeartbeatLost(name, None if heard is None else now - heard, timeout)
 
-    def wait_for_nodes(self, devices: Iterable[Device | str] = CYCLIC,
+    def wait_for_nodes(self, devices: Iterable[Device | str] | None = None,
                        timeout_s: float = 2 * HEARTBEAT_PERIOD_MS / 1000 + 0.1) -> None:
-        """Block until every device has sent a heartbeat; ``NodeMissing`` after ``timeout_s``."""
-        names = [_name(d) for d in devices]
+        """Block until every device (default: the cyclic ones) has sent a heartbeat;
+        ``NodeMissing`` after ``timeout_s``."""
+        names = [_name(d) for d in (self.cyclic if devices is None else devices)]
         deadline = time.monotonic() + timeout_s
         while True:
             missing = [n for n in names if not self.present(n)]
@@ -367,7 +409,7 @@ class AgentBus:
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
         if self._decoder is None:
-            self._decoder = TelemetryDecoder(tuple(self._tpdo_specs.values()))
+            self._decoder = self._telemetry_decoder()
         return self._decoder.decode(cycle, received, latency)
 
     def _pace(self) -> None:
@@ -389,9 +431,6 @@ class AgentBus:
             self.net.check()
         except Exception as exc:
             raise BusDown(f"CAN receive thread stopped: {exc}") from exc
-
-
-_CYCLIC_NAMES = tuple(d.name for d in CYCLIC)
 
 
 @contextmanager

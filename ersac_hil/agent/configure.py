@@ -5,13 +5,18 @@ raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``
 """
 from __future__ import annotations
 
-from ersac_hil.agent.bus import AgentBus
+from typing import TYPE_CHECKING
+
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from protocol.can import objects as obj
 from protocol.can.devices import ARM_LEFT, ARM_RIGHT, TESTBENCH, Device
 from protocol.can.objects import Index, Scenario, spline_position_index, spline_velocity_index
 
+if TYPE_CHECKING:  # the bus calls the board functions here (its drive layer)
+    from ersac_hil.agent.bus import AgentBus
+
 ARMS: tuple[Device, ...] = (ARM_LEFT, ARM_RIGHT)
+ARM_OF: dict[str, Device] = {"left": ARM_LEFT, "right": ARM_RIGHT}
 
 
 def reset_scenario(bus: AgentBus, scenario: Scenario, seed: int) -> None:

@@ -53,7 +53,7 @@ from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, Pe
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.safety import BoardQuickStop, EstopEngaged, QuickStop, Safety, pacing
 from ersac_hil.agent.tasks import EmcyMark, Task, default_tasks, lookup
-from ersac_hil.agent.telemetry import CYCLIC, Commands, Telemetry, Trace
+from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can.devices import TESTBENCH
 from protocol.can.objects import EmcyCode, Status
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
@@ -194,7 +194,7 @@ class EpisodeRunner:
         if refusal is not None:
             raise EstopEngaged(refusal)
         try:
-            bus.wait_for_nodes(CYCLIC, timeout_s=self.config.node_timeout_s)
+            bus.wait_for_nodes(timeout_s=self.config.node_timeout_s)
             bus.nmt_preop()
             testbench = self._testbench_present()
             realtime = pacing(self.safety.pacing, bus.config, testbench)  # LockstepRefused: nothing moved
@@ -212,12 +212,17 @@ class EpisodeRunner:
             first = task.configure(bus, plan.setup)
             bus.nmt_start()
             started = True
+            bus.enable_drives()
             self._loop(plan, episode, first, emcy_mark)
         except AgentFault as exc:
             episode.status, episode.detail = exc.status, str(exc)
             episode.count(_fault_counter(exc))
         finally:
             if started:
+                try:
+                    bus.disable_drives()
+                except AgentFault:
+                    pass
                 try:
                     bus.nmt_preop()
                 except AgentFault:

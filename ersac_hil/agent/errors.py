@@ -73,6 +73,12 @@ class EmcyFault(AgentFault):
     status = "fault_emcy"
 
 
+class DriveFault(AgentFault):
+    """A CiA 402 drive did not take a mode of operation or a power state it was told to."""
+
+    status = "fault_simulator"
+
+
 class RequestRefused(AgentError):
     """The agent refuses a request before touching the robot. ``code`` is an
     ``protocol.zenoh.ERROR_CODES`` entry."""

@@ -35,6 +35,7 @@ import msgspec
 import zenoh
 
 from ersac_hil.agent.bus import AgentBus, BusTiming
+from ersac_hil.agent.cia402 import agent_bus
 from ersac_hil.agent.episode import EpisodeConfig, EpisodeRunner
 from ersac_hil.agent.errors import RequestRefused
 from ersac_hil.agent.safety import Safety, physical_bus
@@ -126,7 +127,7 @@ class AgentService:
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         cfg = self.config
-        self.bus = AgentBus(cfg.bus, timing=cfg.timing).open()
+        self.bus = agent_bus(cfg.bus, cfg.description or default_description(), cfg.timing).open()
         required = cfg.require_commissioning
         if required if required is not None else physical_bus(cfg.bus) is not None:
             from ersac_hil.commission.gate import refusal

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ersac_hil.agent import configure, costs
+from ersac_hil.agent import costs
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import ArmImpedance, BracingPolicy
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, Task
@@ -57,7 +57,7 @@ class BracingTask(Task[BracingSetup]):
         return BracingSetup(self.policy.impedance(stiffness), self.policy.pose)
 
     def configure(self, bus: AgentBus, setup: BracingSetup) -> Commands:
-        configure.apply_impedance(bus, setup.impedance)
+        bus.apply_impedance(setup.impedance)
         return Commands(arm_left=setup.pose, arm_right=setup.pose)
 
     def cost_terms(self, trace: Trace, emcy: Sequence[EmcyMark] = ()) -> dict[str, float]:

@@ -44,14 +44,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ersac_hil.agent import configure, costs
+from ersac_hil.agent import costs
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import LiftingPolicy, Spline
 from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, EndCondition, Task
 from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can import objects as obj
-from protocol.can.devices import ARM_LEFT, ARM_RIGHT, TESTBENCH
+from protocol.can.devices import TESTBENCH
 from protocol.can.objects import Control, EmcyCode, Index, Scenario
 
 
@@ -98,10 +98,10 @@ class LiftingTask(Task[LiftingSetup]):
 
     def begin(self, bus: AgentBus, setup: LiftingSetup, first: Telemetry, commands: Commands) -> Commands:
         poses = {}
-        for arm, side in ((ARM_LEFT, "left"), (ARM_RIGHT, "right")):
+        for side in ("left", "right"):
             start = tuple(float(q) for q in first.arm_positions(side))
             poses[side] = (start[0], start[1])
-            configure.download_spline(bus, arm, self.policy.spline(setup.theta, poses[side]))
+            bus.download_spline(side, self.policy.spline(setup.theta, poses[side]))
         return Commands(arm_left=poses["left"], arm_right=poses["right"],
                         torso_position=commands.torso_position,
                         arm_control=Control.ENABLE | Control.START_SPLINE)

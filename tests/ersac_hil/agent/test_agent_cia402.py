@@ -1,0 +1,119 @@
+"""The agent's CiA 402 drive profile (``ersac_hil.agent.cia402``) on the simulated ``ubot5-cia402``
+robot: whole episodes through the episode runner, the drives enabled at the start in the
+description's modes and disabled at the end, telemetry scaled into the units the costs use,
+the e-stop's quick stop, and refusals."""
+from __future__ import annotations
+
+import math
+import uuid
+from dataclasses import replace
+
+import pytest
+
+from ersac_hil.agent.cia402 import Cia402Bus, agent_bus
+from ersac_hil.agent.bus import AgentBus
+from ersac_hil.agent.errors import ConfigRefused
+from ersac_hil.agent.episode import EpisodeRunner
+from ersac_hil.agent.policies import ArmImpedance
+from ersac_hil.agent.telemetry import JOINTS, Commands
+from firmware_sim.nodes.simrobot import SimulatedRobot
+from helpers.timing import PATIENCE_S, PATIENT, patient_controllers, patient_sdo
+from protocol.can.busconfig import BusConfig
+from protocol.can.cia402 import Index
+from protocol.can.objects import Control
+from protocol.robot import default_description, load_description
+from protocol.zenoh import EpisodeRequest
+
+pytestmark = pytest.mark.timeout(300)
+
+DESCRIPTION = load_description("ubot5-cia402")
+
+
+def holding(robot) -> Commands:
+    """Commands that hold the robot's present pose (no jump for the cables)."""
+    q = {j: robot.sim.axis(j).position for j in JOINTS}
+    return Commands(torso_position=q["torso"], arm_left=(q["shoulder_left"], q["elbow_left"]),
+                    arm_right=(q["shoulder_right"], q["elbow_right"]))
+
+
+@pytest.fixture
+def rig():
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    with SimulatedRobot(config, description=DESCRIPTION) as robot:
+        bus = Cia402Bus(config, DESCRIPTION, timing=PATIENT).open()
+        try:
+            bus.wait_for_nodes(timeout_s=PATIENCE_S)
+            patient_sdo(bus.nodes.values())
+            patient_controllers(bus.nodes.values())
+            yield robot, bus
+        finally:
+            bus.close()
+
+
+def test_agent_bus_by_description():
+    config = BusConfig("virtual", "unused")
+    assert isinstance(agent_bus(config, DESCRIPTION), Cia402Bus)
+    board = agent_bus(config, default_description())
+    assert type(board) is AgentBus and board.devices == default_description().devices
+
+
+def test_bracing_episodes_run_and_end_with_the_drives_disabled(rig):
+    robot, bus = rig
+    runner = EpisodeRunner(bus)
+    results = [runner.run(runner.plan(EpisodeRequest(f"e{k}", "bracing", [theta], 3)))
+               for k, theta in enumerate((0.2, 0.5))]
+    for r in results:
+        assert r.status == "ok", r.detail
+        assert set(r.cost_terms) == {"damage", "body_acc_sq", "arm_power"}
+        assert all(math.isfinite(v) for v in r.cost_terms.values())
+        assert r.duration_s == pytest.approx(2.0)
+    assert results[0].cost_terms != results[1].cost_terms  # theta reaches the drives
+    assert set(bus.drive_states().values()) <= {"SWITCH ON DISABLED", "FAULT"}
+
+
+def test_enable_sets_the_description_modes_and_impedance(rig):
+    robot, bus = rig
+    bus.nmt_preop()
+    bus.apply_impedance(ArmImpedance(stiffness=(120.0, 80.0), damping=(3.0, 1.5)))
+    elbow = bus.nodes["elbow_right"]
+    assert elbow.sdo[0x2012][1].raw == 80000 and elbow.sdo[0x2012][2].raw == 15000
+    bus.nmt_start()
+    bus.enable_drives()
+    try:
+        assert bus.drive_states() == {d.name: "OPERATION ENABLED" for d in bus.drives}
+        for joint in JOINTS:
+            node = bus.nodes[bus.node_of[joint]]
+            expected = 10 if DESCRIPTION.axis(joint).mode == "cst" else 8
+            assert node.sdo[Index.MODES_DISPLAY].raw == expected, joint
+        tel = bus.cycle(holding(robot))
+        for joint, q in zip(JOINTS, tel.position):  # telemetry in rad, as the plant has it
+            assert q == pytest.approx(robot.sim.axis(joint).position, abs=1e-3), joint
+        assert robot.sim.controller("arm_right").impedance("elbow_right") == (80.0, 1.5)
+    finally:
+        bus.disable_drives()
+        bus.nmt_preop()
+    assert set(bus.drive_states().values()) == {"SWITCH ON DISABLED"}
+
+
+def test_estop_commands_quick_stop_every_drive(rig):
+    robot, bus = rig
+    bus.nmt_start()
+    bus.enable_drives()
+    try:
+        hold = holding(robot)
+        bus.cycle(hold)
+        stop = replace(hold, control=Control(0), arm_control=Control(0))  # the e-stop's cycle
+        bus.cycle(stop)
+        assert set(bus.drive_states().values()) == {"QUICK STOP ACTIVE"}
+        bus.cycle(stop)
+        assert set(bus.drive_states().values()) == {"QUICK STOP ACTIVE"}
+    finally:
+        bus.disable_drives()
+        bus.nmt_preop()
+
+
+def test_impedance_outside_the_description_refused(rig):
+    robot, bus = rig
+    top = DESCRIPTION.axis("shoulder_left").stiffness_range.max
+    with pytest.raises(ConfigRefused):
+        bus.apply_impedance(ArmImpedance(stiffness=(top + 1.0, 10.0), damping=(1.0, 1.0)))
