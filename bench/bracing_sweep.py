@@ -2,13 +2,14 @@
 
     .venv/bin/python bench/bracing_sweep.py [--episodes 30] [--first-seed 0] [--step 0.05]
                                            [--thetas 0,0.5,1] [--bootstrap 1000]
-                                           [--out DIR] [--per-episode]
+                                           [--out DIR] [--per-episode] [--drives cia402]
 
 For every theta of the grid (default 0, 0.05, ..., 1), runs ``--episodes`` bracing episodes,
 seeds first-seed .. first-seed + episodes - 1 (the same seeds for every theta: common random
 numbers, so differences between thetas are not seed noise), on an in-process simulated robot
 over a virtual CAN bus, exactly as the learner gets them (``EpisodeRunner.plan`` / ``run``, the
-agent's default configuration and weights). Prints one progress line per theta, then the table
+agent's default configuration and weights; ``--drives cia402``: the same robot on CiA 402
+drives, ``ubot5-cia402``, through the agent's CiA 402 profile). Prints one progress line per theta, then the table
 (theta, K, mean, std and F2 = mean + 2 std of the total cost J with bootstrap standard errors,
 damage and fall rates, the mean of every cost term), the argmin over the grid of
 mean + kappa std for kappa 0, 1, 2, and the F2 gap between the kappa-0 and kappa-2 optima with
@@ -40,13 +41,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from ersac_hil.agent.bus import AgentBus  # noqa: E402
+from ersac_hil.agent.cia402 import agent_bus  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.agent.policies import BracingPolicy  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from ersac_hil.reproduce import figures  # noqa: E402
 from ersac_hil.reproduce.stats import Landscape  # noqa: E402
+from protocol.robot import RobotDescription, default_description, load_description  # noqa: E402
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult  # noqa: E402
+
+DRIVES = {"ubot-board": "ubot5", "cia402": "ubot5-cia402"}
+"""``--drives``: the shipped description of the uBot on each drive profile."""
 
 KAPPAS = (0.0, 1.0, 2.0)
 TERMS = TASKS["bracing"].term_names
@@ -76,7 +82,8 @@ def settle(bus: AgentBus, quiet_s: float = 1.0, deadline_s: float = 30.0) -> Non
 
 
 def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int = 5,
-          progress=print, reruns: list[Rerun] | None = None) -> dict[float, list[EpisodeResult]]:
+          progress=print, reruns: list[Rerun] | None = None,
+          description: RobotDescription | None = None) -> dict[float, list[EpisodeResult]]:
     """{theta: [result per seed]}; every result has status ok. An episode that ends in a bus
     fault (``fault_*``: e.g. a board that lost the agent's heartbeat on a starved machine) is
     recorded in ``reruns`` and run again, up to ``retries`` times (the episode is deterministic
@@ -85,8 +92,9 @@ def sweep(thetas: list[float], episodes: int, first_seed: int = 0, retries: int 
     out: dict[float, list[EpisodeResult]] = {}
     reruns = [] if reruns is None else reruns
     t0 = time.perf_counter()
-    with SimulatedRobot(config):
-        bus = AgentBus(config).open()
+    description = description or default_description()
+    with SimulatedRobot(config, description=description):
+        bus = agent_bus(config, description).open()
         try:
             bus.wait_for_nodes()
             runner = EpisodeRunner(bus)
@@ -137,6 +145,8 @@ def main() -> None:
     ap.add_argument("--bootstrap", type=int, default=1000, help="bootstrap replicates")
     ap.add_argument("--out", type=Path, default=None, help="directory for landscape.{md,json,png}")
     ap.add_argument("--per-episode", action="store_true", help="also print every episode")
+    ap.add_argument("--drives", choices=sorted(DRIVES), default="ubot-board",
+                    help="drive profile of the simulated uBot (default: its own boards)")
     args = ap.parse_args()
     if args.episodes < 2 or not 0 < args.step <= 1:
         ap.error("--episodes must be >= 2 and --step in (0, 1]")
@@ -144,10 +154,11 @@ def main() -> None:
               else [round(x, 6) for x in np.arange(0.0, 1.0 + 1e-9, args.step)])
     t0 = time.perf_counter()
     reruns: list[Rerun] = []
-    results = sweep(thetas, args.episodes, args.first_seed, reruns=reruns)
+    results = sweep(thetas, args.episodes, args.first_seed, reruns=reruns,
+                    description=load_description(DRIVES[args.drives]))
     wall = time.perf_counter() - t0
     weights = TASKS["bracing"].default_weights
-    print(f"bracing landscape: {len(thetas)} thetas x {args.episodes} seeds through the virtual-bus "
+    print(f"bracing landscape ({args.drives}): {len(thetas)} thetas x {args.episodes} seeds through the virtual-bus "
           f"stack, J = " + " + ".join(f"{w:g} {n}" for n, w in weights.items()))
     if args.per_episode:
         for theta, rs in results.items():
