@@ -4,7 +4,9 @@
 into the queue; when the queue is full the sample is dropped and counted (``dropped``), so
 the control loop never waits for ROS 2 or the disk. The thread turns samples into ROS 2
 messages (``messages``) once and hands them to the live node (``bridge.Ros2Node``, every
-``decimation``-th cycle) and to the episode's MCAP file (``recorder``, every cycle).
+``decimation``-th cycle) and to the episode's MCAP file (``recorder``, every cycle). What only
+the file needs (the cycles not published live, the CAN frames) is encoded after the episode's
+last cycle, so that the control loop shares the interpreter with as little as possible.
 ``begin``/``end`` frame an episode (``end`` waits until the thread has written everything of
 it and returns the MCAP file name).
 """
@@ -16,7 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ersac_hil.agent.bus import EmcyEvent
 from ersac_hil.agent.telemetry import Telemetry
@@ -43,6 +45,7 @@ class _Episode:
     status: tuple[int, ...] = ()
     last_diagnostics: int = 0
     emcy_seen: int = 0
+    records: list = field(default_factory=list)  # (topic, CDR or a sample to encode, stamp) for the file
 
     def stamp(self, cycle: int) -> int:
         """The robot's time of a cycle: the episode's start plus SYNC periods."""
@@ -146,20 +149,39 @@ class Feed:
                 if item[0] == "end" and not item[-1].done():
                     item[-1].set_result("")
 
-    def _put(self, topic: str, msg: object, stamp_ns: int, live: bool) -> None:
+    def _put(self, topic: str, msg: object, stamp_ns: int, live: bool = True) -> None:
         data = m.serialize(msg, m.TOPICS[topic])
         if live and self.node is not None:
             self.node.put(topic, data)
             self.published += 1
         if self.recorder is not None:
-            self.recorder.write(topic, data, stamp_ns)
+            if self._episode is not None:
+                self._episode.records.append((topic, data, stamp_ns))
+            else:
+                self.recorder.write(topic, data, stamp_ns)
+
+    def _log(self, stamp_ns: int, level: int, text: str) -> None:
+        if self.recorder is not None and self._episode is not None:
+            self._episode.records.append(("events", (level, text), stamp_ns))
+
+    def _flush(self, ep: _Episode) -> None:
+        """The episode's file: every record in order, encoding what was left for later."""
+        rec = self.recorder
+        for topic, data, stamp in ep.records:
+            if topic == "events":
+                rec.log(stamp, *data)  # type: ignore[union-attr]
+                continue
+            if isinstance(data, Telemetry):
+                data = m.serialize(m.joint_state(data, stamp, self._per_amp) if topic == "joint_states"
+                                   else m.imu(data, stamp), m.TOPICS[topic])
+            rec.write(topic, data, stamp)  # type: ignore[union-attr]
+        ep.records = []
 
     def _on_begin(self, request: EpisodeRequest, start_ns: int, period_ns: int, emcy_mark: int) -> None:
         self._episode = _Episode(request, start_ns, period_ns, emcy_seen=emcy_mark)
-        if self.recorder is not None:
-            self.recorder.log(start_ns, m.LOG_INFO, f"episode {request.episode_id} started: {request.task} "
-                              f"theta={list(request.theta)} seed={request.seed}")
-        self._put("episode", m.episode_status(self.robot, request, None), start_ns, True)
+        self._log(start_ns, m.LOG_INFO, f"episode {request.episode_id} started: {request.task} "
+                  f"theta={list(request.theta)} seed={request.seed}")
+        self._put("episode", m.episode_status(self.robot, request, None), start_ns)
 
     def _on_cycle(self, tel: Telemetry) -> None:
         ep = self._episode
@@ -167,9 +189,11 @@ class Feed:
             return
         stamp = ep.stamp(tel.cycle)
         live = ep.index % self.decimation == 0
-        if live and self.node is not None or self.recorder is not None:
-            self._put("joint_states", m.joint_state(tel, stamp, self._per_amp), stamp, live)
-            self._put("imu", m.imu(tel, stamp), stamp, live)
+        if live and self.node is not None:
+            self._put("joint_states", m.joint_state(tel, stamp, self._per_amp), stamp)
+            self._put("imu", m.imu(tel, stamp), stamp)
+        elif self.recorder is not None:  # the file's alone: encoded after the episode
+            ep.records += [("joint_states", tel, stamp), ("imu", tel, stamp)]
         statuses = []
         if tel.status != ep.status or ep.index - ep.last_diagnostics >= DIAGNOSTICS_EVERY:
             statuses += m.device_statuses(self.robot, tel)
@@ -178,28 +202,28 @@ class Feed:
             for ev in self._emcy(ep.emcy_seen):
                 ep.emcy_seen += 1
                 statuses.append(m.emcy_status(self.robot, ev))
-                if self.recorder is not None:
-                    self.recorder.log(stamp, m.LOG_INFO if ev.code == 0 else m.LOG_WARN,
-                                      statuses[-1].message + f" (register 0x{ev.register:02X})")
+                self._log(stamp, m.LOG_INFO if ev.code == 0 else m.LOG_WARN,
+                          statuses[-1].message + f" (register 0x{ev.register:02X})")
         if statuses:
             ep.last_diagnostics = ep.index
-            self._put("diagnostics", m.diagnostics(stamp, statuses), stamp, True)
+            self._put("diagnostics", m.diagnostics(stamp, statuses), stamp)
         ep.index += 1
 
     def _on_end(self, result: EpisodeResult | None, fault: str, done: Future) -> None:
-        ep, self._episode = self._episode, None
-        name = ""
+        ep, name = self._episode, ""
         if ep is not None:
             stamp = max(time.time_ns(), ep.stamp(ep.first_cycle or 0) + ep.index * ep.period_ns)
             if result is not None:
                 if not result.ok:
-                    self._put("diagnostics", m.diagnostics(stamp, [m.fault_status(self.robot, result)]), stamp, True)
-                self._put("episode", m.episode_status(self.robot, ep.request, result, fault), stamp, True)
+                    self._put("diagnostics", m.diagnostics(stamp, [m.fault_status(self.robot, result)]), stamp)
+                self._put("episode", m.episode_status(self.robot, ep.request, result, fault), stamp)
+            status = result.status if result is not None else fault or "failed"
+            self._log(stamp, m.LOG_INFO if result is not None and result.ok else m.LOG_ERROR,
+                      f"episode {ep.request.episode_id} ended: {status}"
+                      + (f" ({result.detail})" if result is not None and result.detail else "")
+                      + (f", cost {result.total_cost:.6g}" if result is not None and result.total_cost is not None else ""))
             if self.recorder is not None:
-                status = result.status if result is not None else fault or "failed"
-                level = m.LOG_INFO if result is not None and result.ok else m.LOG_ERROR
-                self.recorder.log(stamp, level, f"episode {ep.request.episode_id} ended: {status}"
-                                  + (f" ({result.detail})" if result is not None and result.detail else "")
-                                  + (f", cost {result.total_cost:.6g}" if result is not None and result.total_cost is not None else ""))
+                self._flush(ep)
                 name = self.recorder.end(dropped=self.dropped - self._dropped0)
+        self._episode = None
         done.set_result(name)

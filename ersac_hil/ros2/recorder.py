@@ -37,6 +37,7 @@ class McapEpisodes:
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._name = ""
+        self._frames: list[tuple] = []
 
     def begin(self, episode_id: str, start_ns: int) -> None:
         self.end()
@@ -45,7 +46,7 @@ class McapEpisodes:
             self._file = open(self.directory / name, "wb")
             self._writer = Writer(self._file)
             self._writer.start(profile="ros2", library=LIBRARY)
-            self._channels, self._sequence, self._name = {}, {}, name
+            self._channels, self._sequence, self._name, self._frames = {}, {}, name, []
             for topic, typename in {**m.TOPICS, **m.RECORDED}.items():
                 schema = self._writer.register_schema(typename, "ros2msg", m.msgdef(typename).encode())
                 self._channels[topic] = self._writer.register_channel(f"{self.prefix}/{topic}", "cdr", schema)
@@ -64,16 +65,27 @@ class McapEpisodes:
         self.write("events", m.serialize(m.log(stamp_ns, level, text, self.robot), m.LOG), stamp_ns)
 
     def frame(self, msg: can.Message) -> None:
-        """One CAN frame (the trace tap's thread)."""
-        cdr = m.serialize(m.can_frame(msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id,
-                                      msg.is_remote_frame, msg.is_error_frame), m.CAN_FRAME)
-        self.write("can", cdr, round(msg.timestamp * 1e9))
+        """One CAN frame (the trace tap's thread): kept as it is, encoded when the episode ends
+        (a dozen frames per cycle would otherwise take the control loop's interpreter)."""
+        with self._lock:
+            if self._writer is not None:
+                self._frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id,
+                                     msg.is_remote_frame, msg.is_error_frame))
+
+    def _write_frames(self) -> None:
+        frames, self._frames = self._frames, []
+        for frame in frames:
+            self._sequence["can"] += 1
+            stamp = round(frame[0] * 1e9)
+            self._writer.add_message(self._channels["can"], stamp, m.serialize(m.can_frame(*frame), m.CAN_FRAME),  # type: ignore[union-attr]
+                                     stamp, self._sequence["can"])
 
     def end(self, dropped: int = 0) -> str:
         """Close the episode's file; its name (``""`` if none was open)."""
         with self._lock:
             if self._writer is None:
                 return ""
+            self._write_frames()
             self._writer.add_metadata("feed", {"dropped_samples": str(dropped)})
             self._writer.finish()
             self._file.close()  # type: ignore[union-attr]
