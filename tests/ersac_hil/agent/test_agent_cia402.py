@@ -117,3 +117,27 @@ def test_impedance_outside_the_description_refused(rig):
     top = DESCRIPTION.axis("shoulder_left").stiffness_range.max
     with pytest.raises(ConfigRefused):
         bus.apply_impedance(ArmImpedance(stiffness=(top + 1.0, 10.0), damping=(1.0, 1.0)))
+
+
+def test_agent_service_serves_episodes_on_cia402_drives():
+    """The agent as ``ersac-hil agent --description ubot5-cia402`` runs it: a Zenoh query for an
+    episode answered through the CiA 402 profile (lock-step on the simulated bench)."""
+    from ersac_hil.agent.service import AgentConfig, AgentService
+    from ersac_hil.zenoh_session import EmbeddedRouter
+    from helpers.waiting import wait_until
+    from protocol.zenoh import EpisodeResult, KeySpace
+
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-cia402")
+    with SimulatedRobot(config, description=DESCRIPTION), EmbeddedRouter() as router:
+        agent_config = AgentConfig(robot="ubot-cia402", bus=config, zenoh_connect=(router.endpoint,),
+                                   timing=PATIENT, description=DESCRIPTION)
+        with AgentService(agent_config) as agent, router.open_client() as session:
+            assert isinstance(agent.bus, Cia402Bus)
+            wait_until(lambda: [r for r in session.liveliness().get(keys.agent_alive, timeout=1)
+                                if r.ok is not None], what="the agent's liveliness token")
+            request = EpisodeRequest("q1", "bracing", (0.4,), 5)
+            replies = list(session.get(keys.episode_run, payload=request.to_json(), timeout=120))
+            result = EpisodeResult.from_json(replies[0].ok.payload)
+            assert result.status == "ok", result.detail
+            assert result.telemetry["n_cycles"] == 400
