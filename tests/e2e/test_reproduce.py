@@ -44,6 +44,7 @@ def _ours(out: Path) -> list[int]:
     return pids
 
 
+@pytest.mark.timeout(900)  # --quick is 55 episodes: minutes on a loaded 2-core machine
 def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
     out = tmp_path / "results"
     with group_killed_on_exit(_reproduce(out)) as proc:
@@ -56,7 +57,7 @@ def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
     stored = int(re.findall(r"\] (\d+)/\d+ episodes", first)[-1])
 
     with group_killed_on_exit(_reproduce(out)) as proc:
-        second, _ = proc.communicate(timeout=240)
+        second, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, second
     match = re.search(r"(\d+) episodes to have \((\d+) already stored\)", second)
     assert match and int(match.group(2)) >= stored > 0, second
