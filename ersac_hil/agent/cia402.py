@@ -28,7 +28,10 @@ with its own drive layer: the episode code and the tasks call the same methods o
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping, Sequence
+
+import numpy as np
 
 import canopen
 from canopen.profiles.p402 import BaseNode402
@@ -91,15 +94,14 @@ class Cia402Encoder:
         self._control = commands.arm_control
         refs = {"torso": (commands.torso_position, 0.0)}
         for side, pose in (("left", commands.arm_left), ("right", commands.arm_right)):
-            spline = bus.splines.get(side)
-            if spline is not None and rising & Control.START_SPLINE:
+            table = bus.splines.get(side)
+            if table is not None and rising & Control.START_SPLINE:
                 self._start[side] = cycle
             start = self._start.get(side)
-            if spline is None or start is None:
+            if table is None or start is None:
                 refs.update(zip(_ARM_JOINTS[side], ((q, 0.0) for q in pose)))
                 continue
-            q, qd = spline.sample((cycle - start + 1) * bus.timing.period_s)
-            refs.update(zip(_ARM_JOINTS[side], zip(q[0].tolist(), qd[0].tolist())))
+            refs.update(zip(_ARM_JOINTS[side], table[min(cycle - start, len(table) - 1)]))
         return refs
 
     def encode(self, commands: Commands) -> list[tuple[int, bytes]]:
@@ -198,7 +200,9 @@ class Cia402Bus(AgentBus):
             j: (50000 * cia402.KP_FACTOR, 5000 * cia402.KD_FACTOR) for j in self.axes}
         """Stiffness and damping of the host's impedance law (axes in ``cst``), the drives'
         own defaults until ``apply_impedance``."""
-        self.splines: dict[str, Spline] = {}
+        self.splines: dict[str, list[tuple[tuple[float, float], ...]]] = {}
+        """Per arm, the downloaded spline's (position, velocity) of each joint at the end of
+        every SYNC period from its start."""
         self.last_telemetry: Telemetry | None = None
         super().__init__(config, devices=description.devices, timing=timing)
 
@@ -255,8 +259,12 @@ class Cia402Bus(AgentBus):
                     self.write(self.node_of[joint], ref.index, ref.subindex, round(value / factor))
 
     def download_spline(self, side: str, spline: Spline) -> None:
-        """Kept on the host: evaluated every SYNC once the commands' START_SPLINE rises."""
-        self.splines[side] = spline
+        """Kept on the host, sampled once at the end of every SYNC period from its start (the
+        last sample holds: the spline's end at rest); streamed once START_SPLINE rises."""
+        period = self.timing.period_s
+        n = int(math.ceil(spline.duration / period)) + 1
+        q, qd = spline.sample((np.arange(n) + 1) * period)
+        self.splines[side] = [tuple(zip(qj, qdj)) for qj, qdj in zip(q.tolist(), qd.tolist())]
 
     def enable_drives(self) -> None:
         """Modes set and confirmed, CSP targets where the axes are, OPERATION ENABLED."""

@@ -71,6 +71,15 @@ def test_bracing_episodes_run_and_end_with_the_drives_disabled(rig):
     assert set(bus.drive_states().values()) <= {"SWITCH ON DISABLED", "FAULT"}
 
 
+def test_lifting_streams_the_spline_from_the_host(rig):
+    robot, bus = rig
+    runner = EpisodeRunner(bus)
+    r = runner.run(runner.plan(EpisodeRequest("lift", "lifting", (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2), 3)))
+    assert r.status == "ok", r.detail
+    assert r.detail.startswith("goal reached")  # the arms followed the spline to the goal height
+    assert r.telemetry["final_bottle_height_m"] > 1.0
+
+
 def test_enable_sets_the_description_modes_and_impedance(rig):
     robot, bus = rig
     bus.nmt_preop()
