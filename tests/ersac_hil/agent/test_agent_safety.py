@@ -251,3 +251,40 @@ def test_estop_without_an_agent_says_it_was_not_confirmed():
     with EmbeddedRouter() as router:
         stop = cli("estop", "--robot", "nobody", "--zenoh", router.endpoint, "--timeout", "1")
     assert stop.returncode == 1 and "NOT confirmed - stop the robot by hand" in stop.stderr
+
+
+def test_an_estopped_episode_is_never_stored_as_ok_by_the_daemon(tmp_path):
+    import io
+    from ersac_hil.daemon.config import DaemonConfig
+    from ersac_hil.daemon.service import Daemon
+    from ersac_hil.daemon.store import Store
+    keys = KeySpace("ubot-estop-daemon")
+    bus, robot = bench()
+    watch = SyncWatch(robot, hold_at=HOLD_AT)
+    db = tmp_path / "run.db"
+    try:
+        with EmbeddedRouter() as router:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
+            with AgentService(config) as agent, router.open_client() as session:
+                wait_for_agent(session, keys)
+                daemon = Daemon(DaemonConfig(robot=keys.robot, zenoh=(router.endpoint,), db=db, seed=3,
+                                             resume="new", episodes=2, max_attempts=2, backoff_s=(0.05, 0.1)),
+                                out=io.StringIO())
+                daemon.start()
+                try:
+                    assert watch.held.wait(120), "the daemon's first episode did not run"
+                    session.put(keys.agent_estop, EstopCommand(True, "daemon test").to_json())
+                    wait_until(lambda: agent.safety.engaged is not None, what="the e-stop")
+                    watch.release.set()
+                    assert daemon.finished.wait(120), "the run did not end"  # stopped, then refused: failed
+                finally:
+                    daemon.stop()
+        with Store(db, readonly=True) as store:
+            (run,) = store.runs()
+            attempts = store.attempts(run.run_id)
+            assert store.ok_episodes(run.run_id) == [] and store.update_count(run.run_id) == 0
+            assert attempts[0].status == "stopped" and "daemon test" in attempts[0].detail
+            assert all(a.status != "ok" for a in attempts)
+    finally:
+        watch.close()
+        robot.close()
