@@ -8,6 +8,7 @@ import subprocess
 import sys
 import threading
 import uuid
+from contextlib import contextmanager
 from dataclasses import replace
 
 import pytest
@@ -89,6 +90,15 @@ def agent_state(session, keys: KeySpace) -> AgentState | None:
     return None
 
 
+@contextmanager
+def serving(keys: KeySpace, bus: BusConfig, router: EmbeddedRouter, **config):
+    """An agent service on ``bus`` (patient timing) and a client session that sees it."""
+    with AgentService(AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT,
+                                  **config)) as agent, router.open_client() as session:
+        wait_for_agent(session, keys)
+        yield agent, session
+
+
 def wait_for_agent(session, keys: KeySpace) -> None:
     wait_until(lambda: [r for r in session.liveliness().get(keys.agent_alive, timeout=1) if r.ok is not None],
                what="the agent's liveliness token")
@@ -100,9 +110,7 @@ def test_estop_stops_every_axis_within_two_sync_periods_and_ends_the_episode_sto
     watch = SyncWatch(robot, hold_at=HOLD_AT)
     try:
         with EmbeddedRouter() as router:
-            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
-            with AgentService(config) as agent, router.open_client() as session:
-                wait_for_agent(session, keys)
+            with serving(keys, bus, router) as (agent, session):
                 wait_until(lambda: agent_state(session, keys).phase == "ready",  # once the bench is heard
                            what="a simulated bench, ready without a go")
                 replies: list = []
@@ -145,9 +153,7 @@ def test_an_undecodable_estop_put_is_a_stop():
     bus, robot = bench()
     try:
         with EmbeddedRouter() as router:
-            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
-            with AgentService(config) as agent, router.open_client() as session:
-                wait_for_agent(session, keys)
+            with serving(keys, bus, router) as (agent, session):
                 session.put(keys.agent_estop, b"STOP!")
                 wait_until(lambda: agent.safety.engaged is not None, what="the e-stop")
                 assert "undecodable" in agent.safety.engaged
@@ -163,10 +169,7 @@ def test_a_plan_outside_the_limits_is_refused_with_nothing_moved():
     before = {axis: robot.sim.controller("arm_left").impedance(axis) for axis in BOARDS["arm_left"]}
     try:
         with EmbeddedRouter() as router:
-            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT,
-                                 episode=EpisodeConfig(limits=tight))
-            with AgentService(config), router.open_client() as session:
-                wait_for_agent(session, keys)
+            with serving(keys, bus, router, episode=EpisodeConfig(limits=tight)) as (agent, session):
                 result, error = ask(session, keys, request("bracing", (0.95,)))
                 assert result is None and error.code == "invalid_request"
                 assert "plan refused: shoulder stiffness" in error.reason and "[0, 100]" in error.reason
@@ -227,9 +230,7 @@ def test_estop_go_and_state_commands_are_confirmed_by_the_agent():
     try:
         with EmbeddedRouter() as router:
             z = ("--robot", keys.robot, "--zenoh", router.endpoint)
-            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
-            with AgentService(config) as agent, router.open_client() as session:
-                wait_for_agent(session, keys)
+            with serving(keys, bus, router) as (agent, session):
                 state = cli("state", *z, "--timeout", "1")
                 assert state.returncode == 1  # no learner answers
                 assert "agent     waiting_for_go (real bench, realtime" in state.stdout
@@ -264,9 +265,7 @@ def test_an_estopped_episode_is_never_stored_as_ok_by_the_daemon(tmp_path):
     db = tmp_path / "run.db"
     try:
         with EmbeddedRouter() as router:
-            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
-            with AgentService(config) as agent, router.open_client() as session:
-                wait_for_agent(session, keys)
+            with serving(keys, bus, router) as (agent, session):
                 daemon = Daemon(DaemonConfig(robot=keys.robot, zenoh=(router.endpoint,), db=db, seed=3,
                                              resume="new", episodes=2, max_attempts=2, backoff_s=(0.05, 0.1)),
                                 out=io.StringIO())
