@@ -21,7 +21,8 @@ is refused with one line saying why (``pacing``).
 latches it. The SYNC loop looks at it before every cycle; the next cycle sends the quick-stop
 commands (``QuickStop``) with its SYNC, so every axis is stopped within two SYNC periods of the
 e-stop reaching the agent (one when it arrives while a cycle waits for its TPDOs, two when it
-arrives after the cycle's commands were chosen), and the episode ends ``stopped``. While
+arrives after the cycle's commands were chosen), and the episode ends ``stopped``. Between
+episodes the e-stop sends the profile's idle stop (the boards: NMT pre-operational). While
 latched the agent runs no episode (``unavailable``); ``ersac-hil estop --release`` unlatches
 it, and where the robot has no test bench it then waits for a new go: a go never releases an
 e-stop (a person's "the robot is reset" must not undo another person's stop).
@@ -100,6 +101,9 @@ class QuickStop(Protocol):
     def stop_commands(self, last: Commands) -> Commands:
         """The commands of the cycle that stops the robot, given the last ones sent."""
 
+    def stop_idle(self, bus) -> None:  # noqa: ANN001 - AgentBus
+        """Stop a robot that runs no episode (no SYNC cycle to carry commands)."""
+
 
 @dataclass(frozen=True)
 class BoardQuickStop:
@@ -109,6 +113,10 @@ class BoardQuickStop:
 
     def stop_commands(self, last: Commands) -> Commands:
         return replace(last, wheel_torque=(0.0, 0.0), control=Control(0), arm_control=Control(0))
+
+    def stop_idle(self, bus) -> None:  # noqa: ANN001 - AgentBus
+        """NMT pre-operational (broadcast): a board outside OPERATIONAL drives no torque."""
+        bus.nmt_preop()
 
 
 class Safety:

@@ -130,7 +130,12 @@ class AgentService:
         self.bus = agent_bus(cfg.bus, cfg.description or default_description(), cfg.timing).open()
         required = cfg.require_commissioning
         if required if required is not None else physical_bus(cfg.bus) is not None:
+            from ersac_hil.agent.errors import NodeMissing
             from ersac_hil.commission.gate import refusal
+            try:  # drives that are still booting: give their heartbeats a moment
+                self.bus.wait_for_nodes(timeout_s=2.0)
+            except NodeMissing:
+                pass  # the record will not match: said in the refusal
             sdos = {d.node_id: self.bus.nodes[d.name].sdo for d in self.bus.devices}
             self.uncommissioned = refusal(cfg.description or default_description(), cfg.bus, self.bus.net,
                                           sdos, cfg.commission_record)
@@ -234,6 +239,9 @@ class AgentService:
             item = self._work.get()
             if item is None:
                 return
+            if item is _IDLE_STOP:  # on this thread: the bus has one user at a time
+                self._stop_idle()
+                continue
             query, plan = item
             try:
                 outcome = self._run(plan)
@@ -305,9 +313,18 @@ class AgentService:
         if command.engage:
             self.safety.engage(command.reason or "e-stop")
             log.warning("E-STOP engaged: %s", command.reason or "e-stop")
+            self._work.put(_IDLE_STOP)  # after a running episode's own quick stop, or at once
         else:
             self.safety.release()
             log.warning("e-stop released%s", f": {command.reason}" if command.reason else "")
+
+    def _stop_idle(self) -> None:
+        """The e-stop between episodes: the drive profile's stop of a robot not cycling (the
+        boards: NMT pre-operational again, which drops their torque, whatever left them on)."""
+        try:
+            self.runner.config.quick_stop.stop_idle(self.bus)  # type: ignore[union-attr]
+        except Exception as exc:  # noqa: BLE001 - logged; the latch holds whatever happens
+            log.error("e-stop: the idle stop failed: %s", exc)
 
     def state(self) -> AgentState:
         """What the agent is doing now (the ``agent/state`` reply)."""
@@ -364,6 +381,10 @@ class AgentService:
                          series_of(last, self.bus.timing.period_s, meta, self.config.episode.robot))
         except (OSError, ValueError) as exc:
             log.warning("time series of %s not written: %s", result.episode_id, exc)
+
+
+_IDLE_STOP = object()
+"""Work item: the e-stop's stop of a robot that runs no episode."""
 
 
 def _payload_code(exc: PayloadError) -> str:

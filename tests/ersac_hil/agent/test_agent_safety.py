@@ -287,3 +287,20 @@ def test_an_estopped_episode_is_never_stored_as_ok_by_the_daemon(tmp_path):
     finally:
         watch.close()
         robot.close()
+
+
+def test_estop_between_episodes_stops_a_robot_someone_left_enabled():
+    keys = KeySpace("ubot-estop-idle")
+    bus, robot = bench()
+    master = Master(bus, DEVICES)  # someone else's master drove the robot and left it on
+    try:
+        with EmbeddedRouter() as router, serving(keys, bus, router) as (agent, session):
+            master.network.nmt.state = "OPERATIONAL"
+            wait_until(lambda: all(n.operational for n in robot.nodes.values()), what="the nodes operational")
+            session.put(keys.agent_estop, EstopCommand(True, "idle stop").to_json())
+            wait_until(lambda: not any(n.operational for n in robot.nodes.values()),
+                       what="every node out of OPERATIONAL (boards: no torque)")
+            assert agent_state(session, keys).phase == "stopped"
+    finally:
+        master.close()
+        robot.close()
