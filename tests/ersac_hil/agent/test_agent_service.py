@@ -17,7 +17,7 @@ from ersac_hil.agent.service import AgentConfig, AgentService
 from ersac_hil.canbus import LoopbackHub
 from ersac_hil.zenoh_session import EmbeddedRouter
 from helpers.can_nodes import Master
-from helpers.timing import PATIENT_AGENT_FLAGS, patient_controllers
+from helpers.timing import PATIENT, PATIENT_AGENT_FLAGS, patient_controllers
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can.devices import DEVICES
@@ -243,7 +243,9 @@ def test_without_a_test_bench_the_agent_waits_for_the_go_signal(caplog):
 
     bus = BusConfig("virtual", f"go-{uuid.uuid4().hex[:8]}")
     with SimulatedRobot(bus, devices=ROBOT), EmbeddedRouter() as router:
-        config = AgentConfig(robot=ROBOT_NAME_GO, bus=bus, zenoh_connect=(router.endpoint,))
+        # no test bench: not a simulated bench, so real time (agent.safety), with a simulator on
+        # a loaded machine behind it: patient timing (this test is about the go signal)
+        config = AgentConfig(robot=ROBOT_NAME_GO, bus=bus, zenoh_connect=(router.endpoint,), timing=PATIENT)
         with AgentService(config) as agent, router.open_client() as session:
             keys = KeySpace(ROBOT_NAME_GO)
             wait_for_agent(session, keys)
