@@ -109,14 +109,21 @@ class QuickStop(Protocol):
 class BoardQuickStop:
     """uBot boards: control word 0x2011 without ENABLE on every actuated board and zero wheel
     torque; a disabled axis produces zero torque (the boards' safe state, the same as after a
-    lost heartbeat), from the SYNC that carries it."""
+    lost heartbeat), from the SYNC that carries it. The CiA 402 profile's encoder turns the
+    same commands into its drives' quick stop (``agent.cia402``)."""
 
     def stop_commands(self, last: Commands) -> Commands:
         return replace(last, wheel_torque=(0.0, 0.0), control=Control(0), arm_control=Control(0))
 
     def stop_idle(self, bus) -> None:  # noqa: ANN001 - AgentBus
-        """NMT pre-operational (broadcast): a board outside OPERATIONAL drives no torque."""
-        bus.nmt_preop()
+        """The drive layer's quick stop where it has one (CiA 402: ``Cia402Bus.quick_stop``),
+        then NMT pre-operational (broadcast): a board outside OPERATIONAL drives no torque."""
+        quick_stop = getattr(bus, "quick_stop", None)
+        try:
+            if quick_stop is not None:
+                quick_stop()
+        finally:
+            bus.nmt_preop()
 
 
 class Safety:
