@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits  # noqa: E402
 
 from firmware_sim.plant.linearize import balance_model  # noqa: E402
 from firmware_sim.simulator import Simulator  # noqa: E402
+from protocol.can.devices import SYNC_PERIOD_S  # noqa: E402
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 EPISODES = {"idle": 10.0, "bracing": 2.0, "lifting": 6.0}   # simulated seconds
@@ -110,7 +111,7 @@ def report(repeat: int = 3) -> None:
         for scenario in EPISODES:
             best = min(run(scenario, gains)[0] for _ in range(repeat))
             wall, n, mj = run(scenario, gains, clock=True)
-            sim_s = n * 0.005
+            sim_s = n * SYNC_PERIOD_S
             print(f"{scenario:9} {sim_s:6.1f} {n / best:10.0f} {sim_s / best:7.1f} {best / n * 1e6:10.1f}"
                   f" {100 * mj / wall:8.0f}%")
         print("(control period 5 ms, 5 substeps of 1 ms; RTF = simulated / wall time; the agent-side "

@@ -26,7 +26,7 @@ from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can import cobid  # noqa: E402
-from protocol.can.devices import DEVICES, object_dictionary  # noqa: E402
+from protocol.can.devices import DEVICES, SYNC_PERIOD_S, object_dictionary  # noqa: E402
 from protocol.can.busconfig import BusConfig, open_network  # noqa: E402
 from protocol.can.pdo import cyclic_pdos  # noqa: E402
 import sim_physics  # noqa: E402
@@ -86,10 +86,10 @@ def main() -> None:
                 router = stack.enter_context(EmbeddedRouter())
                 config = BusConfig("zenoh", f"bench-speed@{router.endpoint}")
             rate, p50, p99 = can_cycles_per_second(config, args.cycles)
-        print(f"{name:<32} {rate:>9.0f} {rate * 0.005:>5.1f}x {p50:>7.2f} {p99:>7.2f}", flush=True)
+        print(f"{name:<32} {rate:>9.0f} {rate * SYNC_PERIOD_S:>5.1f}x {p50:>7.2f} {p99:>7.2f}", flush=True)
     if vc.available:
         rate, p50, p99 = can_cycles_per_second(BusConfig("socketcan", "vcan0"), args.cycles)
-        print(f"{'socketcan vcan0':<32} {rate:>9.0f} {rate * 0.005:>5.1f}x {p50:>7.2f} {p99:>7.2f}")
+        print(f"{'socketcan vcan0':<32} {rate:>9.0f} {rate * SYNC_PERIOD_S:>5.1f}x {p50:>7.2f} {p99:>7.2f}")
     else:
         print(f"{'socketcan vcan0':<32} skipped: {vc.reason}")
 

@@ -55,6 +55,8 @@ from pathlib import Path
 from ersac_hil.cli_args import (UsageError, finite_float, non_negative_float, non_negative_int, output_dir,
                                 positive_int, tcp_port)
 from ersac_hil.stack import BUSY_POLL_S, ChildFailed, Stack, cli_argv
+from protocol.robot import default_description
+from protocol.robot.cli import add_description_argument
 
 __all__ = ["register", "DemoConfig", "run_demo"]
 
@@ -82,6 +84,8 @@ class DemoConfig:
             module doc).
         fleet: simulator/agent pairs behind the daemon.
         batch: perturbations per update (``None``: ``fleet``).
+        description: the robot description of the simulators and agents (a shipped name or a
+            file; ``None``: the default, ``ubot5``).
         ros2: the agents publish for ROS 2 (``agent --ros2``, docs/ros2.md) and record each
             episode as ``OUT/mcap/<episode_id>.mcap``.
     """
@@ -105,6 +109,7 @@ class DemoConfig:
     batch: int | None = None
     busy_poll: float | None = None
     ros2: bool = False
+    description: str | None = None
 
 
 def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], None] = print) -> int:
@@ -119,7 +124,7 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
     stack = Stack(out / "logs", stop, lambda line: say(f"demo: {line}"), config.robot, config.seed,
                   pairs=config.fleet, secure=config.secure, router_host=config.router_host,
                   agent_host=config.agent_host, can=config.can, fleet=True, busy_poll=config.busy_poll,
-                  series=out / "series",
+                  series=out / "series", description=config.description,
                   agent_args=("--ros2", "--record", str(out / "mcap")) if config.ros2 else ())
     batch = config.fleet if config.batch is None else config.batch
     code = 1
@@ -199,7 +204,8 @@ def _demo(args: argparse.Namespace) -> int:
     config = DemoConfig(args.task, args.kappa, args.episodes, args.seed, Path(args.out), args.robot,
                         secure=args.secure, linger=args.linger, dashboard=args.dashboard,
                         dashboard_port=args.dashboard_port, can=args.can, fleet=args.fleet, batch=args.batch,
-                        busy_poll=args.busy_poll, ros2=args.ros2)
+                        busy_poll=args.busy_poll, ros2=args.ros2,
+                        description=None if args.description is default_description() else args.description.source)
     return until_signal(lambda stop: run_demo(config, stop, lambda line: print(line, flush=True)))
 
 
@@ -236,6 +242,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "records each episode as OUT/mcap/<episode_id>.mcap (docs/ros2.md)")
     p.add_argument("--linger", action="store_true",
                    help="keep the stack up after the report until Ctrl-C (attach with OUT/stack.json)")
+    add_description_argument(p, drives=True)
     p.set_defaults(func=_demo, validate=_validate)
 
 

@@ -36,13 +36,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="further arguments of the python-can interface, e.g. zenoh_config=simulator.json5")
     p.add_argument("--seed", type=int, default=0, help="seed of the idle scenario at start")
     p.add_argument("--realtime", action="store_true", help="pace physics by the wall clock")
-    p.add_argument("--control-period", type=float, default=0.005, help="s per SYNC (default 0.005)")
+    p.add_argument("--control-period", type=float, default=None,
+                   help="s per SYNC (default: the description's SYNC period, 0.005)")
     p.add_argument("--substeps", type=int, default=5, help="physics steps per period (default 5)")
     p.add_argument("--snapshot", metavar="PNG", help="render one frame headlessly and exit")
     p.add_argument("--scenario", default="bracing", help="scenario of --snapshot")
     p.add_argument("--at", type=float, default=0.0, help="--snapshot: simulated seconds before the frame")
     p.add_argument("--physics", metavar="FILE", help="TOML of named physical overrides (docs/physics.md)")
     p.add_argument("--physics-names", action="store_true", help="list the overridable quantities and exit")
+    from protocol.robot.cli import add_description_argument
+    add_description_argument(p, drives=True)
     p.add_argument("-v", "--verbose", action="count", default=0)
     return p
 
@@ -78,6 +81,12 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
 
     from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, probe_bus, resolve_bus_config
 
+    from firmware_sim.plant.physics import AXES
+    if set(args.description.joints) != set(AXES):
+        parser.error(f"--description {args.description.name}: its axes ({', '.join(args.description.joints)}) "
+                     f"are not the simulated plant's ({', '.join(AXES)})")
+    if args.control_period is None:
+        args.control_period = args.description.bus.sync_period_s
     if not (math.isfinite(args.control_period) and 0 < args.control_period <= 1):
         parser.error(f"--control-period must be in (0, 1] s, got {args.control_period}")
     if args.substeps < 1:
@@ -100,7 +109,8 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace):  # noqa: 
         return None
     try:
         config = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
-                                    parse_bus_kwargs(args.bus_kwargs))
+                                    parse_bus_kwargs(args.bus_kwargs),
+                                    default_bitrate=args.description.bus.bitrate)
         probe_bus(config)
     except BusConfigError as exc:
         parser.error(str(exc))
@@ -137,12 +147,13 @@ def main(argv: list[str] | None = None) -> int:
         from protocol.can.realtime import request_realtime
         print(f"simulator: {request_realtime()}", flush=True)
     robot = SimulatedRobot(config, seed=args.seed, realtime=args.realtime,
-                           control_period=args.control_period, substeps=args.substeps, physics=args.physics)
+                           control_period=args.control_period, substeps=args.substeps, physics=args.physics,
+                           description=args.description)
     from protocol.can.realtime import quiet_gc
     quiet_gc()
     mode = "real-time" if args.realtime else "lock-step"
     print(f"simulator: {len(robot.nodes)} nodes on {config.describe()}, {mode}, "
-          f"{1 / args.control_period:g} Hz, {args.physics.describe()}", flush=True)
+          f"{1 / args.control_period:g} Hz, {args.physics.describe()}, robot {args.description.name}", flush=True)
     try:
         received = signal.sigwait(_SIGNALS)
     finally:

@@ -20,6 +20,8 @@ from enum import Enum
 import mujoco
 import numpy as np
 
+from protocol.can.devices import SYNC_PERIOD_S
+
 from .controllers import (
     BOARDS,
     ConfigStateError,
@@ -156,7 +158,7 @@ class Simulator:
     """Lock-step simulator of the uBot's motor controllers, IMU and test bench.
 
     Args:
-        control_period: s per :meth:`step` (the SYNC period).
+        control_period: s per :meth:`step` (the SYNC period; default the robot description's, 5 ms).
         substeps: physics steps per control period; the timestep control_period / substeps
             must be at most 1 ms.
         balance_free: wheels passive (their drivers ignore torque commands), kept over resets.
@@ -166,7 +168,7 @@ class Simulator:
             replace those of ``cable``); empty: the model as it is.
     """
 
-    def __init__(self, control_period: float = 0.005, substeps: int = 5, *,
+    def __init__(self, control_period: float = SYNC_PERIOD_S, substeps: int = 5, *,
                  balance_free: bool = False, imu_noise: ImuNoise = ImuNoise(),
                  cable: CableSpec = CableSpec(), physics: PhysicsOverrides = PhysicsOverrides()) -> None:
         if not (control_period > 0 and substeps >= 1):

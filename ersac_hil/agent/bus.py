@@ -53,7 +53,7 @@ from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands
 from ersac_hil.agent.tpdos import TpdoCollector
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
-from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, Device, object_dictionary
+from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.objects import Scale
@@ -67,7 +67,8 @@ class BusTiming:
     """Timing of the cyclic exchange.
 
     Attributes:
-        period_s: control period, the SYNC interval in real-time mode (default 5 ms, 200 Hz).
+        period_s: control period, the SYNC interval in real-time mode (default the robot
+            description's, 5 ms: 200 Hz).
         deadline_s: how long a cycle waits for its TPDOs after SYNC (a robot's controllers answer
             within a millisecond; the default leaves room for a simulator on a loaded machine
             and still ends an episode well within a second of the robot going away).
@@ -79,7 +80,7 @@ class BusTiming:
             waits (a simulator stalled by a loaded machine is late, not gone); at least
             ``deadline_s`` and ``heartbeat_timeout_s``. Unused in real time.
     """
-    period_s: float = 0.005
+    period_s: float = SYNC_PERIOD_S
     deadline_s: float = 0.25
     heartbeat_timeout_s: float = 0.6
     realtime: bool = False

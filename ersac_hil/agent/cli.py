@@ -43,7 +43,8 @@ def register(subparsers) -> None:
                         "setpoint limits come from it, and on a physical bus the commissioning record")
     p.add_argument("--commission-record", dest="commission_record", metavar="FILE",
                    help="the record 'ersac-hil commission' wrote (default: the state directory, docs/deploy.md)")
-    p.add_argument("--period-ms", type=positive_float, default=5.0, help="control period (default 5 ms)")
+    p.add_argument("--period-ms", type=positive_float, default=None,
+                   help="control period (default: the description's SYNC period, 5 ms)")
     p.add_argument("--deadline-ms", type=positive_float, default=250.0,
                    help="how long a SYNC cycle waits for its TPDOs (default 250 ms)")
     p.add_argument("--heartbeat-timeout-ms", type=positive_float, default=600.0,
@@ -63,6 +64,8 @@ def _validate(args: argparse.Namespace) -> None:
         args.loaded = load_description(args.description)
         from ersac_hil.agent.limits import SetpointLimits
         args.limits = SetpointLimits.from_description(args.loaded)
+        from ersac_hil.agent.robot import RobotParameters
+        args.robot_limits = RobotParameters.from_description(args.loaded)
     except (DescriptionError, OSError, ValueError) as exc:
         raise UsageError(f"--description: {exc}") from None
     if args.lockstep:  # before the bus is opened: a physical bus is refused as such
@@ -86,16 +89,18 @@ def _run(args: argparse.Namespace) -> int:
     from ersac_hil.agent.episode import EpisodeConfig
     from ersac_hil.agent.safety import physical_bus
     from ersac_hil.agent.service import AgentConfig, AgentService
+    from ersac_hil.agent.tasks import default_tasks
     from ersac_hil.lifecycle import serve
     from ersac_hil.ros2.options import from_args as ros2_options
     from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
 
     try:
         bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
-                                 parse_bus_kwargs(args.bus_kwargs))
+                                 parse_bus_kwargs(args.bus_kwargs), default_bitrate=args.loaded.bus.bitrate)
         real = physical_bus(bus) is not None
         pacing = "realtime" if args.realtime else "lockstep" if args.lockstep else "auto"
-        timing = BusTiming(period_s=args.period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
+        period_ms = args.loaded.bus.sync_period_ms if args.period_ms is None else args.period_ms
+        timing = BusTiming(period_s=period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
                            realtime=args.realtime or real)
         if timing.realtime:  # before the bus and the Zenoh session exist: their threads inherit it
@@ -107,7 +112,9 @@ def _run(args: argparse.Namespace) -> int:
                              record_can=args.record_can, record_format=args.record_format,
                              record_series=args.record_series,
                              ros2=ros2_options(args), record=args.record,
-                             timing=timing, pacing=pacing, episode=EpisodeConfig(limits=args.limits),
+                             timing=timing, pacing=pacing,
+                             episode=EpisodeConfig(tasks=default_tasks(args.robot_limits), robot=args.robot_limits,
+                                                   limits=args.limits),
                              description=args.loaded, commission_record=args.commission_record)
         from ersac_hil.zenoh_session import ZenohOptions, resolve_config
         resolve_config(ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),

@@ -4,7 +4,9 @@ pitch, and the centre of mass of everything above the wheel axle.
 
 The numbers are those of docs/robot_model.md / firmware_sim/plant/ubot.xml (the agent never
 reads the simulator's files; tests/ersac_hil/agent/test_agent_robot.py checks every value here
-against the compiled MJCF).
+against the compiled MJCF). The drive constants and limits (wheel motor, joint ranges, velocity
+limit, the impedance the arm drives accept) are the robot description's (protocol/robots/ubot5.toml;
+``RobotParameters.from_description`` for another one).
 
 Planar convention (the robot's sagittal plane, x forward, z up, origin on the wheel axle):
 body pitch ``alpha`` is positive leaning forward; a shoulder angle ``q_s`` is 0 with the arm
@@ -19,12 +21,14 @@ the world the upper arm points at angle ``q_s - alpha`` from straight down, the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TypeVar
 
 import numpy as np
 
-from protocol.can.objects import OBJECTS, Index
+from protocol.robot import RobotDescription, default_description
+
+_AXIS = default_description().axis  # the default robot's drive constants and limits
 
 Trig = TypeVar("Trig", float, np.ndarray)
 """Sines and cosines as floats or as numpy arrays (``RobotParameters._hand``)."""
@@ -81,9 +85,9 @@ class RobotParameters:
     wheel_inertia: float = 0.5 * 1.0 * 0.10 ** 2
     wheel_armature: float = 0.00906
     wheel_damping: float = 0.002
-    wheel_kt: float = 0.0302
-    wheel_gear: float = 26.0
-    wheel_current_limit: float = 10.0
+    wheel_kt: float = _AXIS("wheel_left").torque_constant
+    wheel_gear: float = _AXIS("wheel_left").gear
+    wheel_current_limit: float = _AXIS("wheel_left").current_limit
     half_track: float = 0.155
     lower_body: tuple[Part, ...] = (_box(8.0, 0.15, 0.07, 0.17), _box(1.4, 0.03, 0.06, 0.04))
     torso_height: float = 0.32
@@ -95,11 +99,11 @@ class RobotParameters:
     upper_arm: tuple[Part, ...] = (_rod(1.0, -0.15, 0.30, 0.03),)
     forearm: tuple[Part, ...] = (_rod(0.6, -0.14, 0.28, 0.025),
                                  Part(0.2, 0.0, -0.32, 0.4 * 0.2 * 0.035 ** 2))
-    shoulder_range: tuple[float, float] = (-1.0, 3.4)
-    elbow_range: tuple[float, float] = (-0.1, 2.6)
-    arm_velocity_limit: float = 10.0
-    stiffness_max: float = OBJECTS[Index.STIFFNESS].limits[1]
-    damping_max: float = OBJECTS[Index.DAMPING].limits[1]
+    shoulder_range: tuple[float, float] = _AXIS("shoulder_left").position_limits.as_tuple()
+    elbow_range: tuple[float, float] = _AXIS("elbow_left").position_limits.as_tuple()
+    arm_velocity_limit: float = _AXIS("shoulder_left").velocity_limit
+    stiffness_max: float = _AXIS("shoulder_left").stiffness_range.max
+    damping_max: float = _AXIS("shoulder_left").damping_range.max
     shoulder_armature: float = 0.0858
     elbow_armature: float = 0.0482
     gravity: float = 9.81
@@ -115,6 +119,24 @@ class RobotParameters:
         (any shape): the motor torque through the gear, over the pulley."""
         torque = self.elbow_kt * self.elbow_gear * np.abs(np.asarray(elbow_current, dtype=float))
         return self.cable_pretension + torque / self.cable_pulley_radius
+
+    @classmethod
+    def from_description(cls, description: RobotDescription, base: "RobotParameters | None" = None
+                         ) -> "RobotParameters":
+        """``base`` (default: the uBot-5's geometry and masses) with the drive constants and
+        limits of ``description``: the left wheel's motor, the left arm's joint ranges, the
+        smallest velocity limit and impedance maxima of the four arm axes."""
+        d = description
+        wheel = d.axis("wheel_left")
+        arms = [d.axis(f"{j}_{side}") for j in ("shoulder", "elbow") for side in ("left", "right")]
+        shoulder, elbow = d.axis("shoulder_left").position_limits, d.axis("elbow_left").position_limits
+        if shoulder is None or elbow is None or any(not a.impedance for a in arms):
+            raise ValueError(f"robot description {d.name}: the arm axes need position limits and an impedance")
+        return replace(base or cls(), wheel_kt=wheel.torque_constant, wheel_gear=wheel.gear,
+                       wheel_current_limit=wheel.current_limit, shoulder_range=shoulder.as_tuple(),
+                       elbow_range=elbow.as_tuple(), arm_velocity_limit=min(a.velocity_limit for a in arms),
+                       stiffness_max=min(a.stiffness_range.max for a in arms),
+                       damping_max=min(a.damping_range.max for a in arms))
 
     @property
     def wheel_torque_limit(self) -> float:

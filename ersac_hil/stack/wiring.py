@@ -53,13 +53,14 @@ class Stack:
             each sample (``ZenohBus(busy_poll=...)``; 0: off; ``None``: :func:`busy_poll_for`).
         series: the agents write every episode's time series there (``agent --record-series``).
         agent_args: further flags of every agent (``demo --ros2``: ``--ros2 --record DIR``).
+        description: ``--description`` of every simulator and agent (``None``: their default).
     """
 
     def __init__(self, logs: Path, stop: threading.Event, say: Callable[[str], None] = print,
                  robot: str = "ubot1", seed: int = 1, pairs: int = 1, secure: bool = False,
                  router_host: str = "127.0.0.1", agent_host: str | None = None, can: str = "direct",
                  fleet: bool = False, busy_poll: float | None = None, series: Path | None = None,
-                 agent_args: Sequence[str] = ()) -> None:
+                 agent_args: Sequence[str] = (), description: str | None = None) -> None:
         from ersac_hil.zenoh_session import free_tcp_port
 
         self.logs, self.stop, self.say, self.robot = logs, stop, say, robot
@@ -73,6 +74,7 @@ class Stack:
         self._can = can
         self._series = ["--record-series", str(series)] if series is not None else []
         self._series += list(agent_args)
+        self._description = [] if description is None else ["--description", description]
         self._busy_poll = busy_poll_for(pairs) if busy_poll is None else busy_poll
         logs.mkdir(parents=True, exist_ok=True)
 
@@ -131,14 +133,15 @@ class Stack:
                 channel = f"{prefix}-{robot}@{self.endpoint}"
                 sim_bus, agent_bus = self.can_args("simulator", channel), self.can_args(
                     "agent", channel, self._agent_host)
-            sim = self.launch(f"sim{tag}", cli_argv("sim", *sim_bus, "--seed", str(self._seed + k - 1)))
+            sim = self.launch(f"sim{tag}", cli_argv("sim", *sim_bus, "--seed", str(self._seed + k - 1),
+                                                    *self._description))
             sims.append((tag, prefix, robot, channel, sim, agent_bus))
         for tag, prefix, robot, channel, sim, agent_bus in sims:
             if self._can == "direct":  # the agent's bus connects to the simulator's listener
                 sim.wait_for(r"^simulator: \d+ nodes", 60, self.stop)
             agent = self.launch(f"agent{tag}", cli_argv("agent", "--robot", robot, "--prefix", prefix,
                                                         *agent_bus, *self.zenoh_args("agent", self._agent_host),
-                                                        *self._series))
+                                                        *self._series, *self._description))
             self.pairs.append(Pair(robot, prefix, channel, sim, agent))
         return self
 

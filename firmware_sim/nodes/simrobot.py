@@ -25,7 +25,7 @@ from firmware_sim.controllers import BOARDS
 from firmware_sim.plant.overrides import PhysicsOverrides
 from firmware_sim.simulator import FailureKind, Simulator
 from protocol.can import cia402, cobid
-from protocol.can.devices import DEVICES, Device
+from protocol.can.devices import DEVICES, SYNC_PERIOD_S, Device
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.objects import EmcyCode, Index
 from protocol.robot import RobotDescription
@@ -53,16 +53,19 @@ class SimulatedRobot:
     """Start with ``SimulatedRobot(bus_config)``; ``close()`` takes every node off the bus."""
 
     def __init__(self, bus_config: BusConfig, *, seed: int = 0, realtime: bool = False,
-                 control_period: float = 0.005, substeps: int = 5,
+                 control_period: float | None = None, substeps: int = 5,
                  devices: tuple[Device, ...] = DEVICES, physics: PhysicsOverrides = PhysicsOverrides(),
                  encoder_counts: Mapping[str, int] | None = None,
                  description: RobotDescription | None = None) -> None:
         """``devices``: the nodes (a CiA 402 node per axis where their profile is ``cia402``);
         ``encoder_counts``: increments per motor revolution of those drives by joint (default
-        ``cia402.ENCODER_INCREMENTS``); ``description``: both from a robot description."""
+        ``cia402.ENCODER_INCREMENTS``); ``description``: both from a robot description;
+        ``control_period``: physics per SYNC (default the description's SYNC period, 5 ms)."""
         if description is not None:
             devices = description.devices
             encoder_counts = {a.name: a.encoder_counts for a in description.axes if a.encoder_counts}
+        if control_period is None:
+            control_period = SYNC_PERIOD_S if description is None else description.bus.sync_period_s
         self.devices = devices
         self.realtime = realtime
         self.lock = threading.RLock()

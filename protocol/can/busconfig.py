@@ -29,9 +29,9 @@ from urllib.parse import urlparse
 import can
 import canopen
 
-log = logging.getLogger(__name__)
+from protocol.can.devices import BITRATE as DEFAULT_BITRATE  # the default robot description's
 
-DEFAULT_BITRATE = 1_000_000
+log = logging.getLogger(__name__)
 
 
 class BusConfigError(ValueError):
@@ -104,9 +104,11 @@ def parse_bus_kwargs(items: Sequence[str] | None) -> tuple[tuple[str, str], ...]
 
 
 def resolve_bus_config(interface: str | None = None, channel: str | None = None,
-                       bitrate: int | None = None, options: Sequence[tuple[str, str]] = ()) -> BusConfig:
+                       bitrate: int | None = None, options: Sequence[tuple[str, str]] = (),
+                       default_bitrate: int = DEFAULT_BITRATE) -> BusConfig:
     """Fill what the caller left ``None`` from python-can's configuration resolution;
-    ``options`` (:func:`parse_bus_kwargs`) override the configured keyword arguments."""
+    ``options`` (:func:`parse_bus_kwargs`) override the configured keyword arguments; a bit
+    rate neither given nor configured is ``default_bitrate`` (the robot description's)."""
     given = {k: v for k, v in (("interface", interface), ("channel", channel),
                                ("bitrate", bitrate)) if v is not None} | dict(options)
     nothing = ("no CAN interface/channel given and none configured "
@@ -119,7 +121,7 @@ def resolve_bus_config(interface: str | None = None, channel: str | None = None,
         raise BusConfigError(nothing)
     extra = tuple((k, str(v)) for k, v in resolved.items() if k not in _OWN_KEYS)
     return BusConfig(str(resolved["interface"]), str(resolved["channel"]),
-                     int(resolved.get("bitrate") or DEFAULT_BITRATE), extra)
+                     int(resolved.get("bitrate") or default_bitrate), extra)
 
 
 def unavailable_reason(config: BusConfig, exc: Exception) -> str:

@@ -14,9 +14,9 @@ from protocol.robot import default_description
 from protocol.robot.eds import object_dictionary_file
 from protocol.robot.model import Device, eds_path
 
-__all__ = ["AGENT_NODE_ID", "ARM_LEFT", "ARM_RIGHT", "CONSUMER_HEARTBEAT_MS", "DEVICES",
-           "HEARTBEAT_PERIOD_MS", "IMU", "ROBOT", "TESTBENCH", "TORSO", "WHEELS", "Device",
-           "device", "eds_path", "object_dictionary"]
+__all__ = ["AGENT_NODE_ID", "ARM_LEFT", "ARM_RIGHT", "BITRATE", "CONSUMER_HEARTBEAT_MS", "DEVICES",
+           "HEARTBEAT_PERIOD_MS", "IMU", "ROBOT", "SYNC_PERIOD_S", "TESTBENCH", "TORSO", "WHEELS",
+           "Device", "device", "eds_path", "object_dictionary"]
 
 _DEFAULT = default_description()
 
@@ -28,6 +28,13 @@ HEARTBEAT_PERIOD_MS = _DEFAULT.bus.heartbeat_period_ms
 
 CONSUMER_HEARTBEAT_MS = _DEFAULT.bus.consumer_heartbeat_ms
 """How long a controller tolerates silence from the agent before its safe state (0x1016)."""
+
+SYNC_PERIOD_S = _DEFAULT.bus.sync_period_s
+"""The control period, one SYNC every 5 ms (200 Hz): the default of every program's period
+(the simulator's step, the agent's SYNC in real time), each with its command-line override."""
+
+BITRATE = _DEFAULT.bus.bitrate
+"""The bus's bit rate [bit/s] (1 Mbit/s), the default where a CAN interface needs one."""
 
 DEVICES: tuple[Device, ...] = _DEFAULT.devices
 """Every node of a simulated uBot, in node-id order."""

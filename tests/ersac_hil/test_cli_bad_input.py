@@ -30,7 +30,9 @@ UNKNOWN_OPTION = (("--no-such-option",), "error:")
 # that holds only {given}: a bracing store of robot r (bracing.db), an empty file (empty.db) and a
 # text file (file), which every refusal must leave byte for byte as they were
 BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
-    "bus-load": [(("--rate", "0"), "must be positive"), (("--bitrate", "fast"), "not an integer")],
+    "bus-load": [(("--rate", "0"), "must be positive"), (("--bitrate", "fast"), "not an integer"),
+                 (("--description", "ubot9"), "no shipped robot description"),
+                 (("--bitrate", "125000"), "more than the bus carries")],
     "bus": [(("--port", "99999"), "not a TCP port")],
     "router": [(("--port", "-1"), "not a TCP port")],
     "agent": [
@@ -42,6 +44,8 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "r", *Z), "no CAN interface/channel given"),
         (("--robot", "r", *Z, "--bus-interface", "zenoh", "--bus-channel", "c",
           "--bus-kwargs", "zenoh_config={tmp}/none.json5"), "no such file"),
+        (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--description", "{tmp}/none.toml"),
+         "none.toml: cannot read it"),
         (("--robot", "r", *Z, "--bus-interface", "socketcan", "--bus-channel", "can0", "--lockstep"),
          "lock-step refused on socketcan:can0: socketcan can0 is a physical CAN bus"),
         (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--lockstep",
@@ -88,6 +92,7 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "a b", "--out", "{tmp}/demo"), "not a valid key chunk"),
         (("--dashboard-port", "99999", "--out", "{tmp}/demo"), "not a TCP port"),
         (("--out", "/proc/demo"), "cannot write"),
+        (("--description", "{tmp}/none.toml", "--out", "{tmp}/demo"), "none.toml: cannot read it"),
     ],
     "sim": [
         (("--bus-interface", "virtual", "--bus-channel", "x", "--control-period", "0"), "--control-period must be"),

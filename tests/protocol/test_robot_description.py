@@ -61,7 +61,7 @@ def test_board_axes_constants():
 
 @pytest.mark.skipif(CIA402_EDS.exists(), reason="the CiA 402 drive's EDS is there")
 def test_cia402_description_refused_while_its_eds_is_missing():
-    with pytest.raises(DescriptionError, match=r"^nodes\.wheel_left\.eds: .*cia402_drive\.eds"):
+    with pytest.raises(DescriptionError, match=r"^ubot5-cia402: nodes\.wheel_left\.eds: .*cia402_drive\.eds"):
         load_description("ubot5-cia402")
 
 
@@ -275,3 +275,34 @@ def test_cia402_schedule_within_seventy_percent():
     assert out.returncode == 0, out.stdout + out.stderr
     last = out.stdout.strip().splitlines()[-1]
     assert last.endswith("at 1000000 bit/s, 200 Hz") and float(last.split()[2].rstrip("%")) <= 70.0
+
+
+@pytest.mark.skipif(not CIA402_EDS.exists(), reason="the CiA 402 drive's EDS is not shipped yet")
+def test_the_documented_example_loads(tmp_path: Path):
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "robot_description.md").read_text()
+    example = doc.split("```toml\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "eds").mkdir()
+    (tmp_path / "eds" / "md80.eds").write_bytes(CIA402_EDS.read_bytes())
+    (tmp_path / "one-arm.toml").write_text(example)
+    d = load_description(tmp_path / "one-arm.toml")
+    assert d.joints == ("shoulder_left", "elbow_left") and d.testbench is None
+    assert [a.mode for a in d.axes] == ["csp-impedance", "cst"]
+
+
+@pytest.mark.parametrize("name", ["ubot5", "ubot5-cia402"])
+def test_shipped_descriptions_pass_every_eds_check(name):
+    """Shipped descriptions are loaded without parsing their EDS files: held to them here."""
+    path = SHIPPED_DIR / f"{name}.toml"
+    if name == "ubot5-cia402" and not CIA402_EDS.exists():
+        pytest.skip("the CiA 402 drive's EDS is not shipped yet")
+    full = parse_description(tomllib.loads(path.read_text()), base=SHIPPED_DIR, source=str(path))
+    assert full == load_description(name)
+
+
+def test_a_malformed_eds_is_refused(tmp_path: Path):
+    (tmp_path / "eds").mkdir()
+    (tmp_path / "eds" / "broken.eds").write_text("[1000]\nParameterName=Device type\nObjectType=0x7\n")
+    text = (SHIPPED_DIR / "ubot5.toml").read_text().replace('eds = "torso.eds"', 'eds = "eds/broken.eds"')
+    (tmp_path / "r.toml").write_text(text)
+    with pytest.raises(DescriptionError, match=r"r\.toml: nodes\.torso\.eds: .*broken\.eds does not parse"):
+        load_description(tmp_path / "r.toml")

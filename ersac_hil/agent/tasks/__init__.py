@@ -2,13 +2,16 @@
 
     task = lookup(tasks, "bracing")     # UnknownTask (reply ``unknown_task``) if not served
 
-``default_tasks()`` is every task of this package with its default configuration; an agent may
+``default_tasks()`` is every task of this package with its default configuration (for the
+limits of one robot description: ``default_tasks(RobotParameters.from_description(d))``); an agent may
 serve a subset (``EpisodeConfig.tasks``). A task name is also a key of the contract's
 ``protocol.zenoh.TASKS`` (parameter box, cost-term names, horizon).
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
+
+from ersac_hil.agent.robot import UBOT, RobotParameters
 
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, EndCondition, Task, UnknownTask
 from ersac_hil.agent.tasks.bracing import BracingSetup, BracingTask
@@ -20,9 +23,9 @@ __all__ = ["Balance", "BracingSetup", "BracingTask", "EmcyMark", "EndCondition",
 _TASK_TYPES: tuple[type[Task], ...] = (BracingTask, LiftingTask)
 
 
-def default_tasks() -> dict[str, Task]:
-    """Every task with its default configuration, by name."""
-    return {cls.name: cls() for cls in _TASK_TYPES}
+def default_tasks(robot: RobotParameters = UBOT) -> dict[str, Task]:
+    """Every task with its default configuration for ``robot``'s limits, by name."""
+    return {cls.name: cls() if robot == UBOT else cls.for_robot(robot) for cls in _TASK_TYPES}
 
 
 def lookup(tasks: Mapping[str, Task], name: str) -> Task:

@@ -28,6 +28,7 @@ from typing import Generic, TypeVar
 
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.errors import RequestRefused
+from ersac_hil.agent.robot import RobotParameters
 from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can.objects import Scenario, Status
 from protocol.zenoh import TASKS, TaskSpec
@@ -81,6 +82,11 @@ class Task(ABC, Generic[Setup]):
 
     name: str
     scenario: Scenario
+
+    @classmethod
+    def for_robot(cls, robot: RobotParameters) -> "Task":
+        """The default configuration for ``robot`` (its limits and stiffness range)."""
+        return cls()
 
     @property
     def spec(self) -> TaskSpec:

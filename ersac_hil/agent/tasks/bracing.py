@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from ersac_hil.agent import costs
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.policies import ArmImpedance, BracingPolicy
+from ersac_hil.agent.robot import RobotParameters
 from ersac_hil.agent.tasks.base import Balance, EmcyMark, Task
 from ersac_hil.agent.telemetry import Commands, Trace
 from protocol.can import objects as obj
@@ -47,6 +48,10 @@ class BracingTask(Task[BracingSetup]):
     strike_acc: float = 30.0
     name = "bracing"
     scenario = Scenario.BRACING
+
+    @classmethod
+    def for_robot(cls, robot: RobotParameters) -> "BracingTask":
+        return cls(policy=BracingPolicy(robot=robot))
 
     @property
     def balance(self) -> Balance:

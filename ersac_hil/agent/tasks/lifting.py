@@ -84,6 +84,10 @@ class LiftingTask(Task[LiftingSetup]):
     name = "lifting"
     scenario = Scenario.LIFTING
 
+    @classmethod
+    def for_robot(cls, robot: RobotParameters) -> "LiftingTask":
+        return cls(policy=LiftingPolicy(velocity_limit=robot.arm_velocity_limit, robot=robot), robot=robot)
+
     @property
     def balance(self) -> Balance:
         return Balance(self.policy.start, self.payload_kg_held, None)
