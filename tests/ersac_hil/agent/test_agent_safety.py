@@ -38,8 +38,11 @@ class SyncWatch:
     applied that SYNC's commands and stepped: counts SYNCs, records whether every axis was
     enabled, and can hold the simulator at one SYNC until released."""
 
-    def __init__(self, robot: SimulatedRobot, hold_at: int | None = None) -> None:
+    def __init__(self, robot: SimulatedRobot, hold_at: int | None = None, enabled=None) -> None:  # noqa: ANN001
+        """``enabled(robot) -> list[bool]``: which axes are driven (default: the boards' axes)."""
         self.robot, self.hold_at = robot, hold_at
+        self._enabled = enabled or (lambda r: [r.sim.controller(board).status(axis).enabled
+                                               for board, axes in BOARDS.items() for axis in axes])
         self.count = 0
         self.enabled: list[list[bool]] = []
         self.held, self.release = threading.Event(), threading.Event()
@@ -48,9 +51,7 @@ class SyncWatch:
     def _on_sync(self, can_id, data, timestamp) -> None:
         with self.robot.lock:
             self.count += 1
-            sim = self.robot.sim
-            self.enabled.append([sim.controller(board).status(axis).enabled
-                                 for board, axes in BOARDS.items() for axis in axes])
+            self.enabled.append(self._enabled(self.robot))
         if self.count == self.hold_at:
             self.held.set()
             self.release.wait(60)
@@ -303,4 +304,36 @@ def test_estop_between_episodes_stops_a_robot_someone_left_enabled():
             assert agent_state(session, keys).phase == "stopped"
     finally:
         master.close()
+        robot.close()
+
+
+def test_estop_quick_stops_every_cia402_drive_within_two_sync_periods():
+    from firmware_sim.nodes.cia402 import DriveApp
+    from protocol.can.cia402 import State
+    from protocol.robot import load_description
+    description = load_description("ubot5-cia402")
+    keys = KeySpace("ubot-estop-cia402")
+    bus = BusConfig("virtual", f"safety402-{uuid.uuid4().hex[:8]}")
+    robot = SimulatedRobot(bus, description=description)
+    drives = [n.app for n in robot.nodes.values() if isinstance(n.app, DriveApp)]
+    assert len(drives) == 7
+    watch = SyncWatch(robot, hold_at=HOLD_AT, enabled=lambda r: [d.state == State.OPERATION_ENABLED for d in drives])
+    try:
+        with EmbeddedRouter() as router, serving(keys, bus, router, description=description) as (agent, session):
+            replies: list = []
+            t = threading.Thread(target=lambda: replies.append(ask(session, keys, request("bracing", (0.5,)))))
+            t.start()
+            assert watch.held.wait(120), "the episode did not reach its SYNC"
+            assert all(watch.enabled[HOLD_AT - 1]), "every drive in OPERATION ENABLED before the stop"
+            session.put(keys.agent_estop, EstopCommand(True, "cia402 stop").to_json())
+            wait_until(lambda: agent.safety.engaged is not None, what="the agent hearing the e-stop")
+            watch.release.set()
+            t.join(timeout=120)
+            result, error = replies[0]
+            assert error is None and result.status == "stopped" and result.cost_terms == {}
+            stopped_at = next(i + 1 for i, row in enumerate(watch.enabled) if not any(row))
+            assert HOLD_AT < stopped_at <= HOLD_AT + 2, (stopped_at, watch.enabled[HOLD_AT - 1:])
+            assert {d.state for d in drives} <= {State.QUICK_STOP_ACTIVE, State.SWITCH_ON_DISABLED}
+    finally:
+        watch.close()
         robot.close()
