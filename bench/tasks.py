@@ -3,7 +3,8 @@
     .venv/bin/python bench/tasks.py learning --task bracing --kappas 2,0 --seeds 1-20 \
         --methods default,paper --out bench-tasks
     .venv/bin/python bench/tasks.py learning --task lifting --seeds 1-20 --out bench-tasks
-    .venv/bin/python bench/tasks.py peers --seeds 1-20 --out bench-tasks
+    .venv/bin/python bench/tasks.py peers --seeds 1-20 --pairs 2 --out bench-tasks
+    .venv/bin/python bench/tasks.py surrogate --seeds 0-19
 
 Every episode is an ``episode/run`` query to an agent of a simulator/agent pair started as in
 ``ersac-hil reproduce`` (``ersac_hil.demo.Stack``, one pair by default: the machine's cores
@@ -31,9 +32,10 @@ std), mean-variance Bayesian optimisation in the style of RAHBO (GPs on the mean
 log variance of ``REPEATS`` evaluations per point, lower confidence bound of mean + kappa
 std) and random search with re-evaluation, at equal episode budgets on the same stack (every
 evaluation an independent episode with the scenario seed the daemon would give the learner's
-episode of the same index): F(theta, 2) regret of the recommended policy after 15, 30, 45
-bracing episodes (against the landscape, interpolated), lifting success after 30. Prints a
-table and writes ``tasks.png``.
+episode of the same index), against the default learner's runs of the same seeds: F(theta, 2)
+regret of the recommended policy after 15, 30, 45 bracing episodes (against the landscape,
+interpolated). Prints a table and writes ``tasks.png``. (Lifting is not among the peers' tasks
+yet.)
 """
 from __future__ import annotations
 
@@ -167,18 +169,37 @@ def learning(args: argparse.Namespace) -> dict:
     land = Landscape.load(args.landscape)
     for m in methods:
         for k in kappas:
-            rows = [(s, history(run_spec(m, args.task, k, s, episodes).db(out))) for s in seeds]
+            dbs = [run_spec(m, args.task, k, s, episodes).db(out) for s in seeds]
+            rows = [(s, history(db)) for s, db in zip(seeds, dbs)]
             if args.task == "bracing":
-                result["runs"][f"{m} k{k:g}"] = _bracing_table(m, k, rows, land)
+                result["runs"][f"{m} k{k:g}"] = _bracing_table(m, k, rows, land, dbs)
             else:
                 result["runs"][f"{m} k{k:g}"] = _lifting_table(m, rows, trials)
     (out / f"learning-{args.task}.json").write_text(json.dumps(result, indent=1) + "\n")
     return result
 
 
-def _bracing_table(method: str, kappa: float, rows: list, land: Landscape) -> dict:
+def final_policy(db: Path) -> np.ndarray:
+    """The run's final policy under the current code: the ``select`` learner's final step
+    recomputed from the store (a pure function of the stored run; a run made before that step
+    changed gets today's), else the recorded one (``History.final_policy``)."""
+    from ersac_hil.daemon.runs import rebuild_engine
+    from ersac_hil.daemon.store import Store
+    from ersac_hil.learner.presets import LEGACY_LEARNER, preset
+
+    h = history(db)
+    kappa = float(h.run.settings["kappa"])
+    if not preset(h.run.settings.get("learner", LEGACY_LEARNER)).final_selection or kappa <= 0:
+        return h.policy_after(len(h.theta_after))
+    with Store(db, readonly=True) as store:
+        engine = rebuild_engine(store, store.runs()[-1])
+    engine.adopt(tuple(h.policy_after(len(h.theta_after))))
+    return np.asarray(engine.select(kappa, pessimism=kappa)[0], dtype=float)
+
+
+def _bracing_table(method: str, kappa: float, rows: list, land: Landscape, dbs: list[Path]) -> dict:
     opt = land.optimum(kappa)
-    final = [float(h.final_policy[0]) for _, h in rows]
+    final = [float(final_policy(db)[0]) for db in dbs]
     within = [abs(t - opt) <= TOLERANCE + 1e-9 for t in final]
     dmg = [land.damage_at(t) for t in final]
     last = [float(h.damage[-15:].mean()) for _, h in rows]
@@ -259,6 +280,120 @@ def surrogate(args: argparse.Namespace) -> None:
                   f"{np.mean([land.damage_at(t) for t in final]):.3f} ({land.damage_at(opt):.3f}) |")
 
 
+PEERS = ("CMA-ES", "MV-BO", "random")
+CHECKPOINTS = (15, 30, 45)
+
+
+def _peer_problem(task: str, budget: int, evaluate: Callable[[np.ndarray], float]):  # noqa: ANN202
+    """bench/learner.py's ``Problem`` for ``task`` whose every draw is an episode through the
+    stack (``evaluate``); its J and r are unused by the peers."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import learner as peers  # bench/learner.py: CMA-ES, MV-BO and random search
+    from ersac_hil.daemon.config import task_defaults
+    from protocol.zenoh import get_task
+
+    spec, d = get_task(task), task_defaults(task)
+    nan = lambda X: np.full(len(X), np.nan)  # noqa: E731
+    return peers, peers.Problem(task, np.column_stack([spec.lower, spec.upper]), np.asarray(d.theta0), nan, nan,
+                                budget, float(d.sigma[0]), d.eta, d.epsilon, 10, 10,
+                                sample=lambda x, _noise, k: np.array([evaluate(x) for _ in range(k or 1)]))
+
+
+def peer_job(method: str, task: str, kappa: float, seed: int, budget: int, trials: TrialStore, out: Path,
+             stop: threading.Event) -> Callable:
+    """One peer run on a worker: every evaluation a trial with the scenario seed the daemon
+    gives learner episode idx of run seed ``seed``; writes ``peers/<name>.json`` (the
+    recommended policy after every episode)."""
+    from ersac_hil.daemon.runs import scenario_seed
+    from ersac_hil.reproduce.trials import run_trial
+
+    path = out / "peers" / f"{method}-{task}-k{kappa:g}-s{seed}.json"
+
+    def job(worker) -> None:  # noqa: ANN001
+        if path.exists():
+            return
+        idx = [0]
+
+        def evaluate(x: np.ndarray) -> float:
+            t = TrialSpec(task, tuple(float(v) for v in x), scenario_seed(seed, idx[0]))
+            idx[0] += 1
+            run_trial(worker.link, trials, t, stop)
+            got = trials.get([t]).get(t)
+            if got is None or not got.ok:
+                raise RuntimeError(f"trial {t.key} did not finish")
+            return got.cost()
+
+        peers, problem = _peer_problem(task, budget, evaluate)
+        run = {"CMA-ES": peers.run_cma, "MV-BO": peers.run_mvbo, "random": peers.run_random}[method]
+        traj, _ = run(problem, kappa, seed)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"method": method, "task": task, "kappa": kappa, "seed": seed,
+                                    "recommended": np.asarray(traj).tolist()}))
+    return job
+
+
+def peers_bench(args: argparse.Namespace) -> None:
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    seeds, kappa, budget = parse_seeds(args.seeds), 2.0, 45
+    stack = _stack(out, stop, args.pairs)
+    trials = TrialStore(out / "trials.db")
+    pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
+    jobs = [(f"{m} s{s}", peer_job(m, "bracing", kappa, s, budget, trials, out, stop)) for m in PEERS for s in seeds]
+    specs = [run_spec("default", "bracing", kappa, s, budget) for s in seeds]
+    t0, load0 = time.monotonic(), os.getloadavg()[0]
+    try:
+        pool.run(pool.learning_jobs(specs, out) + jobs)
+    finally:
+        pool.close()
+        stack.close()
+    wall = time.monotonic() - t0
+    land = Landscape.load(args.landscape)
+    opt = land.F(land.optimum(kappa), kappa)
+    rows: dict[str, list[list[float]]] = {}
+    for s in seeds:
+        h = history(run_spec("default", "bracing", kappa, s, budget).db(out))
+        db = run_spec("default", "bracing", kappa, s, budget).db(out)
+        rec = [float(h.policy_after(n)[0]) for n in CHECKPOINTS[:-1]] + [float(final_policy(db)[0])]
+        rows.setdefault("ERSAC (default)", []).append([land.F(t, kappa) - opt for t in rec])
+        for m in PEERS:
+            traj = json.loads((out / "peers" / f"{m}-bracing-k{kappa:g}-s{s}.json").read_text())["recommended"]
+            rows.setdefault(m, []).append([land.F(traj[n - 1][0], kappa) - opt for n in CHECKPOINTS])
+    print(f"\nbracing, kappa 2, seeds {args.seeds}: F(theta, 2) regret of the recommended policy (landscape; "
+          f"median [IQR] over seeds); wall time {wall / 60:.1f} min, load {load0:.1f} -> {os.getloadavg()[0]:.1f}")
+    print("| method | " + " | ".join(f"after {n}" for n in CHECKPOINTS) + " |")
+    print("|---" * (len(CHECKPOINTS) + 1) + "|")
+    for m, r in rows.items():
+        a = np.array(r)
+        print(f"| {m} | " + " | ".join(f"{np.median(a[:, i]):.1f} [{np.percentile(a[:, i], 25):.1f}-{np.percentile(a[:, i], 75):.1f}]"
+                                       for i in range(len(CHECKPOINTS))) + " |")
+    _plot(rows, out / "tasks.png", args.seeds)
+    (out / "peers-bracing.json").write_text(json.dumps({"seeds": seeds, "wall_s": wall, "regret": rows}, indent=1))
+
+
+def _plot(rows: dict[str, list[list[float]]], path: Path, seeds: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for i, (m, r) in enumerate(rows.items()):
+        a = np.array(r)
+        x = np.array(CHECKPOINTS) + (i - 1.5) * 0.8
+        ax.errorbar(x, np.median(a, axis=0), yerr=[np.median(a, axis=0) - np.percentile(a, 25, axis=0),
+                                                   np.percentile(a, 75, axis=0) - np.median(a, axis=0)],
+                    marker="o", capsize=3, label=m)
+    ax.set_xlabel("bracing episodes")
+    ax.set_ylabel("F(theta, 2) regret of the recommended policy")
+    ax.set_xticks(CHECKPOINTS)
+    ax.set_title(f"bracing, kappa 2, run seeds {seeds}: median and IQR")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"wrote {path}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -272,17 +407,20 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--kappas", default="2,0")
     sp.add_argument("--seeds", default="0-19")
     sp.add_argument("--methods", default=",".join(SURROGATE))
-    for p in (lp, sp):
+    pp = sub.add_parser("peers", help="CMA-ES, MV-BO, random search against the default learner (bracing)")
+    pp.add_argument("--seeds", default="1-20")
+    for p in (lp, sp, pp):
         p.add_argument("--landscape", default=None, help="landscape.json of bench/bracing_sweep.py --out")
-    lp.add_argument("--out", default="bench-tasks")
-    lp.add_argument("--pairs", type=int, default=1)
+    for p in (lp, pp):
+        p.add_argument("--out", default="bench-tasks")
+        p.add_argument("--pairs", type=int, default=1)
     lp.add_argument("--physics", default=None, help="the simulators' --physics FILE (docs/physics.md)")
     args = ap.parse_args(argv)
     known = SURROGATE if args.what == "surrogate" else METHODS
-    unknown = [m for m in args.methods.split(",") if m and m not in known]
+    unknown = [m for m in getattr(args, "methods", "").split(",") if m and m not in known]
     if unknown:
         ap.error(f"unknown method {unknown[0]!r}; known: {', '.join(known)}")
-    (surrogate if args.what == "surrogate" else learning)(args)
+    {"surrogate": surrogate, "learning": learning, "peers": peers_bench}[args.what](args)
     return 0
 
 
