@@ -26,6 +26,13 @@ lock-step a node is lost only after ``lockstep_patience_s`` of silence (no TPDO 
 no heartbeat), and SDO transfers wait as long; a late cycle is waited for and counts nothing.
 Real time keeps ``deadline_s`` and ``heartbeat_timeout_s``.
 
+A faulty node on the bus ends the cycle with ``BusFault``, never as data: a TPDO of the wrong
+length or twice in one cycle (``tpdos.TpdoCollector``), a frame of a COB-ID that none of the
+robot's nodes sends (a foreign SYNC or NMT, a second producer of the agent's RPDOs or
+heartbeat, a node babbling on a high-priority id), an error or remote frame, an SDO answer
+while no transfer is in flight. ``cycle`` raises the first one recorded since the last check;
+``check_bus`` does so between cycles (the end of an episode).
+
 Threads: the bus's receive thread (a python-can Notifier, or CAN over Zenoh's push delivery)
 runs the TPDO callbacks (``tpdos.TpdoCollector``) and the heartbeat/EMCY callbacks (short,
 under one condition variable); ``cycle``/SDO calls come from one caller thread.
@@ -46,7 +53,7 @@ from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ersac_hil.agent import configure
-from ersac_hil.agent.errors import (BusDown, ConfigRefused, HeartbeatLost, NodeMissing,
+from ersac_hil.agent.errors import (BusDown, BusFault, ConfigRefused, HeartbeatLost, NodeMissing,
                                     PdoTimeout, SdoTimeout)
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands, Telemetry, TelemetryDecoder
@@ -142,6 +149,7 @@ class AgentBus:
         self.overruns = 0
         self._next_sync: float | None = None
         self._last_commands = Commands()
+        self._sdo_busy = 0
 
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> "AgentBus":
@@ -174,13 +182,17 @@ class AgentBus:
             if dev in ACTUATED:
                 rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                           for n, m in node.rpdo.map.items() if m.enabled]
-        self._tpdos, self._encoder = TpdoCollector(sizes), self._command_encoder(rpdos)
+        known = _receivable(self.devices)
+        self._tpdos, self._encoder = TpdoCollector(sizes, known), self._command_encoder(rpdos)
         intercept = getattr(net.notifier, "intercept", None)
         if intercept is not None:  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
             intercept(self._tpdos.take)
         else:
             for cob_id in sizes:
                 net.subscribe(cob_id, self._tpdos.handler(cob_id))
+            net.notifier.add_listener(_ForeignFrames(known, self._tpdos.note))
+        for dev in self.devices:
+            net.subscribe(cobid.sdo_tx(dev.node_id), lambda *_, name=dev.name: self._on_sdo_answer(name))
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
         return self
@@ -339,6 +351,20 @@ class AgentBus:
             raise BusDown(f"NMT {state} not sent: {exc}") from exc
 
     # -- SDO -------------------------------------------------------------------------------
+    def _on_sdo_answer(self, name: str) -> None:
+        if not self._sdo_busy:
+            self._tpdos.note(f"an SDO answer from {name} while no transfer was in flight")  # type: ignore[union-attr]
+
+    @contextmanager
+    def _transfer(self) -> Iterator[None]:
+        with self._cond:
+            self._sdo_busy += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._sdo_busy -= 1
+
     def write(self, device: Device | str, index: int, subindex: int, value: float,
               scale: Scale | None = None) -> int:
         """Download ``value`` (SI with ``scale``, else raw) to ``index:subindex`` of ``device``.
@@ -349,7 +375,7 @@ class AgentBus:
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
         raw = scale.to_raw(value) if scale is not None else int(value)
-        with _sdo_errors(name, index, subindex, value):
+        with _sdo_errors(name, index, subindex, value), self._transfer():
             self.nodes[name].sdo.download(index, subindex, var.encode_raw(raw))
         return raw
 
@@ -358,7 +384,7 @@ class AgentBus:
         """Upload ``index:subindex`` of ``device`` (SI with ``scale``, else raw)."""
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
-        with _sdo_errors(name, index, subindex, None):
+        with _sdo_errors(name, index, subindex, None), self._transfer():
             raw = var.decode_raw(self.nodes[name].sdo.upload(index, subindex))
         return scale.from_raw(raw) if scale is not None else raw
 
@@ -403,15 +429,25 @@ class AgentBus:
         latency = time.perf_counter() - t0
         if missing:
             self._raise_if_bus_down()
-            if silent:  # its heartbeat had stopped too when the TPDO was due
-                raise HeartbeatLost(silent[0], self.heartbeat_ages()[silent[0]], timing.heartbeat_timeout_s)
+            ages = self.heartbeat_ages()
+            silent = [d for d in silent if ages[d] is None or ages[d] > timing.heartbeat_timeout_s]
+            if silent:  # its heartbeat had stopped when the TPDO was due, and has not come back
+                raise HeartbeatLost(silent[0], ages[silent[0]], timing.heartbeat_timeout_s)
             names = tuple(sorted(f"{self._tpdo_device[c]}:0x{c:03X}" for c in missing))
             raise PdoTimeout(cycle, names, timing.tpdo_wait_s)
+        self.check_bus(cycle)
         if self.timing.realtime and time.perf_counter() > self._next_sync + self.timing.period_s:
             self.overruns += 1
         if self._decoder is None:
             self._decoder = self._telemetry_decoder()
         return self._decoder.decode(cycle, received, latency)
+
+    def check_bus(self, cycle: int | None = None) -> None:
+        """Raise ``BusFault`` for the first fault of a node on the bus recorded since the last
+        check (see the module doc)."""
+        fault = self._tpdos.fault() if self._tpdos is not None else None
+        if fault is not None:
+            raise BusFault(f"SYNC cycle {self.cycles if cycle is None else cycle}: {fault}")
 
     def _pace(self) -> None:
         now = time.perf_counter()
@@ -432,6 +468,31 @@ class AgentBus:
             self.net.check()
         except Exception as exc:
             raise BusDown(f"CAN receive thread stopped: {exc}") from exc
+
+
+def _receivable(devices: Iterable[Device]) -> frozenset[int]:
+    """The COB-IDs the robot's nodes send (every node of the robot, not only ``devices``):
+    TPDOs, EMCY, SDO answers, heartbeats. Any other frame the agent hears is foreign."""
+    ids: set[int] = set()
+    for dev in {*DEVICES, *devices}:
+        ids |= {cobid.emcy(dev.node_id), cobid.sdo_tx(dev.node_id), cobid.heartbeat(dev.node_id)}
+        ids |= {p.cob_id for p in pdo_maps(dev) if p.direction == "tpdo"}
+    return frozenset(ids)
+
+
+class _ForeignFrames(can.Listener):
+    """Every frame the agent hears, beside canopen's dispatch (which drops error and remote
+    frames unseen): records foreign ones (``known``: what the robot's nodes send)."""
+
+    def __init__(self, known: frozenset[int], note) -> None:  # noqa: ANN001
+        self._known, self._note = known, note
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame:
+            self._note(f"{'error' if msg.is_error_frame else 'remote'} frame 0x{msg.arbitration_id:03X} on the bus")
+        elif msg.arbitration_id not in self._known:
+            self._note(f"a frame of 0x{msg.arbitration_id:03X}, which no node of the robot sends "
+                       "(a foreign SYNC/NMT, a second producer of the agent's frames, or a babbling node)")
 
 
 @contextmanager

@@ -308,6 +308,7 @@ class EpisodeRunner:
                 if why is not None:
                     episode.detail = why
                     break
+            bus.check_bus()  # a faulty node's frames after the last cycle: no ok episode of them
             self._check_emcy(episode, emcy_mark)
             self._flags(episode, tel)
         finally:

@@ -61,6 +61,13 @@ class BusDown(AgentFault):
     status = "fault_simulator"
 
 
+class BusFault(AgentFault):
+    """A faulty node on the bus: frames that break the bus's contract (a TPDO of the wrong
+    length or twice in a cycle, a foreign SYNC, error frames, ...); what it sent is never data."""
+
+    status = "fault_simulator"
+
+
 class SdoTimeout(AgentFault):
     """A node did not answer an SDO request."""
 

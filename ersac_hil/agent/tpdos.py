@@ -10,10 +10,15 @@ Frames arrive on the bus's receive thread, one by one through canopen (``handler
 Zenoh sample's burst in one call (``take``: one lock per burst, the TPDOs consumed, the other
 frames left for canopen). The frame that completes the set wakes the waiting cycle by
 releasing a plain lock (no ``threading.Condition``: its
-Python-level waiter bookkeeping cost more than the rest of a TPDO's handling). A frame that is
-not expected (late, after a timeout, or a second copy) or shorter than its map is ignored;
-each frame's data is kept as the first ``size`` bytes of the map, unpacked by the caller
-(``telemetry.TelemetryDecoder``).
+Python-level waiter bookkeeping cost more than the rest of a TPDO's handling). Each frame's
+data is kept whole, unpacked by the caller (``telemetry.TelemetryDecoder``); a late frame (after
+a timeout) is ignored.
+
+A faulty node on the bus is a bus fault, never data: a TPDO whose length is not its map's (CiA
+301's PDO length errors, EMCY 0x8210/0x8220 on a device), or a second copy of a TPDO in one
+cycle (a second producer of that COB-ID, or a second SYNC) is not taken and is recorded
+(:meth:`TpdoCollector.fault`; the bus layer records what it sees too with :meth:`note`: a
+foreign SYNC, error frames...). The first fault recorded is kept until :meth:`fault` takes it.
 """
 from __future__ import annotations
 
@@ -21,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 
-from ersac_hil.canbus.zenoh_bus import NOT_DATA, Frame
+from ersac_hil.canbus.zenoh_bus import ERROR_FRAME, NOT_DATA, Frame
 
 __all__ = ["TpdoCollector"]
 
@@ -31,15 +36,41 @@ _NONE_MISSING: frozenset[int] = frozenset()
 class TpdoCollector:
     """Args:
         sizes: per COB-ID of a synchronous TPDO, the size of its map in bytes.
+        known: the COB-IDs the robot's nodes send; in a burst (``take``) any other frame is
+            a fault (``None``: not checked; frame by frame, the bus layer checks).
     """
 
-    def __init__(self, sizes: Mapping[int, int]) -> None:
+    def __init__(self, sizes: Mapping[int, int], known: frozenset[int] | None = None) -> None:
         self._sizes = dict(sizes)
+        self._known = known
         self._lock = threading.Lock()
         self._arrived = threading.Lock()
         self._arrived.acquire()  # held while a set is incomplete; released by its last frame
         self._pending: set[int] = set()
         self._frames: dict[int, bytes | bytearray] = {}
+        self._fault: str | None = None
+
+    def note(self, fault: str) -> None:
+        """Record a bus fault (the first one is kept until :meth:`fault` takes it)."""
+        if self._fault is None:
+            self._fault = fault
+
+    def fault(self) -> str | None:
+        """The first bus fault recorded since the last call (``None``: none), taken."""
+        fault, self._fault = self._fault, None
+        return fault
+
+    def _odd(self, cob_id: int, n: int) -> bool:
+        """Record what is wrong with a frame of TPDO ``cob_id`` of ``n`` bytes that is not
+        taken (called under the lock); ``True`` if it is a fault."""
+        size = self._sizes[cob_id]
+        if n != size:
+            self.note(f"TPDO 0x{cob_id:03X} of {n} bytes, its map has {size}")
+        elif cob_id in self._frames and cob_id not in self._pending:
+            self.note(f"TPDO 0x{cob_id:03X} twice in one cycle (a second producer, or a second SYNC)")
+        else:
+            return False
+        return True
 
     def handler(self, cob_id: int) -> Callable[[int, bytearray, float], None]:
         """The ``(can_id, data, timestamp)`` callback of ``cob_id`` (canopen's subscriber
@@ -48,13 +79,11 @@ class TpdoCollector:
         lock, pending, frames, arrived = self._lock, self._pending, self._frames, self._arrived
 
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
-            n = len(data)
-            if n < size:
-                return
             with lock:
-                if cob_id not in pending:
+                if cob_id not in pending or len(data) != size:
+                    self._odd(cob_id, len(data))
                     return
-                frames[cob_id] = data if n == size else data[:size]
+                frames[cob_id] = data
                 pending.discard(cob_id)
                 if not pending:
                     arrived.release()
@@ -70,12 +99,20 @@ class TpdoCollector:
             waiting = bool(pending)
             for frame in frames:
                 cob_id, flags, _, data = frame
-                if cob_id in pending and not flags & NOT_DATA:
-                    size = sizes[cob_id]
-                    if len(data) >= size:
-                        kept[cob_id] = data if len(data) == size else data[:size]
+                if cob_id in sizes and not flags & NOT_DATA:
+                    if cob_id in pending and len(data) == sizes[cob_id]:
+                        kept[cob_id] = data
                         pending.discard(cob_id)
                         continue
+                    if self._odd(cob_id, len(data)):
+                        continue
+                elif flags & NOT_DATA:
+                    self.note(f"{'error' if flags & ERROR_FRAME else 'remote'} frame 0x{cob_id:03X} on the bus")
+                    continue
+                elif self._known is not None and cob_id not in self._known:
+                    self.note(f"a frame of 0x{cob_id:03X}, which no node of the robot sends (a foreign "
+                              "SYNC/NMT, a second producer of the agent's frames, or a babbling node)")
+                    continue
                 rest.append(frame)
             if waiting and not pending:
                 self._arrived.release()

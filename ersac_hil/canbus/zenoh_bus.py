@@ -105,8 +105,8 @@ from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "Frame", "NOT_DATA", "encode_frame",
-           "encode_data_frames", "decode_frame", "decode_frames", "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "Frame", "NOT_DATA", "ERROR_FRAME",
+           "encode_frame", "encode_data_frames", "decode_frame", "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
 #: How long ``shutdown`` waits for a put in progress on another thread (seconds).
@@ -118,6 +118,8 @@ _log = logging.getLogger(__name__)
 _HEADER = struct.Struct("<IBBB")
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
 NOT_DATA = _REMOTE | _ERROR
+#: The flag of an error frame in a ``Frame``.
+ERROR_FRAME = _ERROR
 """Flags of the frames that carry no data (remote and error frames; see the wire format)."""
 Frame = tuple[int, int, int, bytearray]
 """One received frame as the push path handles it: ``(arbitration id, flags, dlc, data)``

@@ -1,0 +1,119 @@
+"""A faulty CAN node on the robot's bus: the agent never crashes, the episode ends as a bus fault
+(``BusFault``: status ``fault_simulator``, counter ``bus_faults``, no cost terms), nothing of it
+is ever an ok episode. A rogue node (its own bus on the same channel) sends, right after the
+robot's TPDOs of one SYNC: PDOs of the wrong length, a second copy of a TPDO, a foreign SYNC,
+a flood on a high-priority id, an error frame, an SDO answer nobody asked for; and a hypothesis
+fuzzer of such frames. Over the virtual bus (frame by frame through canopen) and CAN over
+Zenoh (bursts through the TPDO collector)."""
+from __future__ import annotations
+
+import can
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from ersac_hil.agent.bus import AgentBus
+from ersac_hil.agent.episode import EpisodeRunner
+from firmware_sim.nodes.simrobot import SimulatedRobot
+from helpers.can_nodes import at_sync
+from protocol.can import cobid
+from protocol.can.busconfig import open_network
+from protocol.can.devices import DEVICES
+from protocol.can.pdo import pdo_maps, pdo_struct
+from protocol.zenoh import STATUSES, EpisodeRequest
+
+pytestmark = pytest.mark.timeout(300)
+IMU = next(d for d in DEVICES if d.name == "imu")
+TPDOS = {p.cob_id: pdo_struct(p).size for d in DEVICES for p in pdo_maps(d)
+         if p.direction == "tpdo" and 1 <= p.transmission_type <= 240}
+RPDOS = sorted({p.cob_id for d in DEVICES for p in pdo_maps(d) if p.direction == "rpdo"})
+IMU_TPDO = min(c for c in TPDOS if c & 0x7F == IMU.node_id)
+
+
+def _frames(kind: str) -> list[can.Message]:
+    size = TPDOS[IMU_TPDO]
+    return {
+        "wrong_length": [can.Message(arbitration_id=IMU_TPDO, data=bytes(size - 1), is_extended_id=False)],
+        "too_long": [can.Message(arbitration_id=IMU_TPDO, data=bytes(min(size + 1, 8)), is_extended_id=False)],
+        "twice": [can.Message(arbitration_id=IMU_TPDO, data=bytes([0x55] * size), is_extended_id=False)],
+        "foreign_sync": [can.Message(arbitration_id=cobid.SYNC, data=b"", is_extended_id=False)],
+        "babbler": [can.Message(arbitration_id=0x001, data=bytes(8), is_extended_id=False)] * 50,
+        "error_frame": [can.Message(arbitration_id=0x0, is_error_frame=True, data=bytes(8), is_extended_id=False)],
+        "sdo_answer": [can.Message(arbitration_id=cobid.sdo_tx(IMU.node_id), data=bytes([0x43, 0x18, 0x10, 1, 0, 0, 0, 0]),
+                                   is_extended_id=False)],
+    }[kind]
+
+
+class Rig:
+    def __init__(self, config) -> None:  # noqa: ANN001
+        self.robot = SimulatedRobot(config)
+        self.bus = AgentBus(config).open()  # the defaults: lock-step
+        self.bus.wait_for_nodes(timeout_s=30)
+        self.runner = EpisodeRunner(self.bus)
+        self.rogue = open_network(config)
+
+    def episode(self, frames: list[can.Message] | None = None, at_s: float = 0.5, seed: int = 3):
+        injected = None
+        if frames is not None:
+            def inject() -> None:
+                for msg in frames:
+                    self.rogue.bus.send(msg)
+            injected = at_sync(self.robot.network, lambda: self.robot.sim.sim_time >= at_s, inject)
+        result = self.runner.run(self.runner.plan(EpisodeRequest("rogue", "bracing", (0.35,), seed)))
+        return result, injected
+
+    def close(self) -> None:
+        self.rogue.disconnect()
+        self.bus.close()
+        self.robot.close()
+
+
+@pytest.fixture
+def rig(can_backend):
+    r = Rig(can_backend)
+    yield r
+    r.close()
+
+
+def _is_bus_fault(result) -> bool:  # noqa: ANN001
+    return (result.status == "fault_simulator" and result.fault_counts.get("bus_faults") == 1
+            and result.cost_terms == {} and result.total_cost is None and "SYNC cycle" in result.detail)
+
+
+@pytest.mark.parametrize("can_backend", ["virtual", "zenoh"], indirect=True)
+@pytest.mark.parametrize("kind", ["wrong_length", "too_long", "twice", "foreign_sync", "babbler", "error_frame",
+                                  "sdo_answer"])
+def test_a_faulty_node_ends_the_episode_as_a_bus_fault(rig, kind):
+    calm, _ = rig.episode()
+    assert calm.status == "ok", calm.detail  # the same episode without the rogue node
+    result, injected = rig.episode(_frames(kind))
+    assert injected.is_set()
+    assert _is_bus_fault(result), (result.status, result.detail, result.fault_counts)
+
+
+ROGUE_IDS = sorted({*TPDOS, cobid.SYNC, 0x000, 0x001, 0x07F, 0x100, *RPDOS, cobid.heartbeat(1),
+                    *(cobid.sdo_rx(d.node_id) for d in DEVICES), *(cobid.sdo_tx(d.node_id) for d in DEVICES)})
+rogue_frame = st.builds(
+    lambda cob_id, data, error: can.Message(arbitration_id=cob_id, data=data, is_error_frame=error,
+                                            is_extended_id=False),
+    st.sampled_from(ROGUE_IDS), st.binary(max_size=8), st.booleans())
+
+
+@pytest.fixture(scope="module")
+def fuzz_rig():
+    import uuid
+    from protocol.can.busconfig import BusConfig
+    r = Rig(BusConfig("virtual", f"fuzz-{uuid.uuid4().hex[:8]}"))
+    yield r
+    r.close()
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames=st.lists(rogue_frame, min_size=1, max_size=6), at_s=st.floats(0.02, 1.9))
+def test_fuzzed_frames_during_episodes_are_never_ok(fuzz_rig, frames, at_s):
+    """Frames a faulty node may send (the robot's TPDO, SYNC, NMT, RPDO and SDO ids and
+    high-priority ones, any length, error frames): the agent answers every episode, and
+    never with ok."""
+    result, injected = fuzz_rig.episode(frames, at_s)
+    assume(injected.is_set())
+    assert result.status in STATUSES and result.status != "ok", (result.status, result.detail)
