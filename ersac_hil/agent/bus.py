@@ -149,7 +149,8 @@ class AgentBus:
         self.overruns = 0
         self._next_sync: float | None = None
         self._last_commands = Commands()
-        self._sdo_busy = 0
+        self._sdo_requests: dict[str, int] = {}
+        self._sdo_answers: dict[str, int] = {}
 
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> "AgentBus":
@@ -191,7 +192,9 @@ class AgentBus:
             for cob_id in sizes:
                 net.subscribe(cob_id, self._tpdos.handler(cob_id))
             net.notifier.add_listener(_ForeignFrames(known, self._tpdos.note))
-        for dev in self.devices:
+        for dev in self.devices:  # every SDO answer answers a request (of canopen's client of the node)
+            client = self.nodes[dev.name].sdo
+            client.send_request = self._counted(dev.name, client.send_request)
             net.subscribe(cobid.sdo_tx(dev.node_id), lambda *_, name=dev.name: self._on_sdo_answer(name))
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
@@ -351,19 +354,20 @@ class AgentBus:
             raise BusDown(f"NMT {state} not sent: {exc}") from exc
 
     # -- SDO -------------------------------------------------------------------------------
-    def _on_sdo_answer(self, name: str) -> None:
-        if not self._sdo_busy:
-            self._tpdos.note(f"an SDO answer from {name} while no transfer was in flight")  # type: ignore[union-attr]
-
-    @contextmanager
-    def _transfer(self) -> Iterator[None]:
-        with self._cond:
-            self._sdo_busy += 1
-        try:
-            yield
-        finally:
+    def _counted(self, name: str, send_request):  # noqa: ANN001, ANN202
+        def send(request) -> None:  # noqa: ANN001
             with self._cond:
-                self._sdo_busy -= 1
+                self._sdo_requests[name] = self._sdo_requests.get(name, 0) + 1
+            send_request(request)
+        return send
+
+    def _on_sdo_answer(self, name: str) -> None:
+        with self._cond:
+            answers = self._sdo_answers[name] = self._sdo_answers.get(name, 0) + 1
+            requests = self._sdo_requests.get(name, 0)
+        if answers > requests:
+            self._tpdos.note(f"an SDO answer from {name} to no request ({answers} answers to "  # type: ignore[union-attr]
+                             f"{requests} requests)")
 
     def write(self, device: Device | str, index: int, subindex: int, value: float,
               scale: Scale | None = None) -> int:
@@ -375,7 +379,7 @@ class AgentBus:
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
         raw = scale.to_raw(value) if scale is not None else int(value)
-        with _sdo_errors(name, index, subindex, value), self._transfer():
+        with _sdo_errors(name, index, subindex, value):
             self.nodes[name].sdo.download(index, subindex, var.encode_raw(raw))
         return raw
 
@@ -384,7 +388,7 @@ class AgentBus:
         """Upload ``index:subindex`` of ``device`` (SI with ``scale``, else raw)."""
         name = _name(device)
         var = _variable(self._by_name[name], index, subindex)
-        with _sdo_errors(name, index, subindex, None), self._transfer():
+        with _sdo_errors(name, index, subindex, None):
             raw = var.decode_raw(self.nodes[name].sdo.upload(index, subindex))
         return scale.from_raw(raw) if scale is not None else raw
 
