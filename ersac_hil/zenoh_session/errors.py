@@ -19,9 +19,23 @@ class ZenohSessionError(RuntimeError):
 
 
 _RUST_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")
+_JSON5_MESSAGE = re.compile(r'Json5Err\(Message \{ msg: "(.*?)", location: ', re.S)
+_PARSER_DUMP = re.compile(r"-->\s*(\d+):(\d+).*\n\s*=\s*(.+?)\s*$", re.S)
 
 
 def zenoh_reason(exc: BaseException) -> str:
-    """Zenoh's error text without the Rust source locations it appends (`` at /.../x.rs:388.``):
-    the build machine's paths tell a user nothing."""
-    return _RUST_SOURCE.sub("", str(exc)).strip()
+    """Zenoh's error text made one readable line: without the Rust source locations it
+    appends (`` at /.../x.rs:388.``: the build machine's paths tell a user nothing), a
+    ``Json5Err(Message { msg: ... })`` as its message, and a json5 parser dump (source lines,
+    carets) as where the parser stopped and what it expected there - the mistake is there or
+    after it."""
+    text = _RUST_SOURCE.sub("", str(exc)).strip()
+    message = _JSON5_MESSAGE.search(text)
+    if message:
+        return message.group(1)
+    dump = _PARSER_DUMP.search(text)
+    if dump:
+        line, column, expected = dump.groups()
+        return (f"json5 syntax error: the parser stops at line {line}, column {column} ({expected}); "
+                "the mistake is there or after it")
+    return " ".join(text.split())

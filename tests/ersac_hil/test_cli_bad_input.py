@@ -27,8 +27,9 @@ UNKNOWN_OPTION = (("--no-such-option",), "error:")
 """Every subcommand gets this case too."""
 
 # subcommand -> [(its arguments, a phrase the one-line answer must contain)]; {tmp}: a directory
-# that holds only {given}: a bracing store of robot r (bracing.db), an empty file (empty.db) and a
-# text file (file), which every refusal must leave byte for byte as they were
+# that holds only {given}: a bracing store of robot r (bracing.db), an empty file (empty.db), a
+# text file (file) and a json5 file with a syntax error (bad.json5), which every refusal must leave
+# byte for byte as they were
 BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
     "bus-load": [(("--rate", "0"), "must be positive"), (("--bitrate", "fast"), "not an integer"),
                  (("--description", "ubot9"), "no shipped robot description"),
@@ -70,7 +71,9 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--robot", "r", *Z, "--db", "{given}/empty.db"), "not an ersac-hil store (an empty file)"),
         (("--robot", "r", *Z, "--db", "{given}/file"), "not an ersac-hil store"),
     ],
-    "state": [(("--timeout", "0", *Z), "must be positive")],
+    "state": [(("--timeout", "0", *Z), "must be positive"),
+              (("--zenoh", "not an endpoint"), "Endpoints must be of the form <protocol>/<address>"),
+              (("--zenoh-config", "{given}/bad.json5"), "json5 syntax error: the parser stops at line 1")],
     "kappa": [(("set", "nan", *Z), "finite"), (("set", *Z), "needs a VALUE")],
     "weights": [(("set", "damage=-1", *Z), "below the minimum"), (("set", "colour=1", *Z), "not a cost term")],
     "critic": [(("--grid", "0", *Z), "grid"), (Z, "--theta")],
@@ -165,7 +168,7 @@ def _run_sim(argv: list[str]) -> tuple[int | None, str]:
 
 def _given(directory: Path) -> Path:
     """The files the cases refer to as {given}: a closed bracing store of robot r with one
-    running run (kappa 0), an empty file, a text file."""
+    running run (kappa 0), an empty file, a text file, a json5 file with a syntax error."""
     from ersac_hil.daemon.config import DaemonConfig
     from ersac_hil.daemon.runs import open_run
     from ersac_hil.daemon.store import Store
@@ -174,6 +177,7 @@ def _given(directory: Path) -> Path:
         open_run(store, DaemonConfig(robot="r", task="bracing", seed=1, db=directory / "bracing.db"))
     (directory / "empty.db").touch()
     (directory / "file").write_text("not a store\n")
+    (directory / "bad.json5").write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:9"] },\n bad }\n')
     return directory
 
 
