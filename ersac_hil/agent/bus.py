@@ -57,7 +57,7 @@ from ersac_hil.agent.errors import (BusDown, BusFault, ConfigRefused, HeartbeatL
                                     PdoTimeout, SdoTimeout)
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands, Telemetry, TelemetryDecoder
-from ersac_hil.agent.tpdos import TpdoCollector
+from ersac_hil.agent.tpdos import TpdoCollector, foreign_frame
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
@@ -492,11 +492,8 @@ class _ForeignFrames(can.Listener):
         self._known, self._note = known, note
 
     def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_error_frame or msg.is_remote_frame:
-            self._note(f"{'error' if msg.is_error_frame else 'remote'} frame 0x{msg.arbitration_id:03X} on the bus")
-        elif msg.arbitration_id not in self._known:
-            self._note(f"a frame of 0x{msg.arbitration_id:03X}, which no node of the robot sends "
-                       "(a foreign SYNC/NMT, a second producer of the agent's frames, or a babbling node)")
+        if msg.is_error_frame or msg.is_remote_frame or msg.arbitration_id not in self._known:
+            self._note(foreign_frame(msg.arbitration_id, msg.is_error_frame, msg.is_remote_frame))
 
 
 @contextmanager

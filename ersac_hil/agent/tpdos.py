@@ -28,9 +28,18 @@ from collections.abc import Callable, Mapping
 
 from ersac_hil.canbus.zenoh_bus import ERROR_FRAME, NOT_DATA, Frame
 
-__all__ = ["TpdoCollector"]
+__all__ = ["TpdoCollector", "foreign_frame"]
 
 _NONE_MISSING: frozenset[int] = frozenset()
+
+
+def foreign_frame(cob_id: int, error: bool = False, remote: bool = False) -> str:
+    """The bus fault of a frame that is not data of the robot's nodes: an error or remote
+    frame, or a data frame of a COB-ID none of the robot's nodes sends."""
+    if error or remote:
+        return f"{'error' if error else 'remote'} frame 0x{cob_id:03X} on the bus"
+    return (f"a frame of 0x{cob_id:03X}, which no node of the robot sends (a foreign SYNC/NMT, a second "
+            "producer of the agent's frames, or a babbling node)")
 
 
 class TpdoCollector:
@@ -106,12 +115,8 @@ class TpdoCollector:
                         continue
                     if self._odd(cob_id, len(data)):
                         continue
-                elif flags & NOT_DATA:
-                    self.note(f"{'error' if flags & ERROR_FRAME else 'remote'} frame 0x{cob_id:03X} on the bus")
-                    continue
-                elif self._known is not None and cob_id not in self._known:
-                    self.note(f"a frame of 0x{cob_id:03X}, which no node of the robot sends (a foreign "
-                              "SYNC/NMT, a second producer of the agent's frames, or a babbling node)")
+                elif flags & NOT_DATA or (self._known is not None and cob_id not in self._known):
+                    self.note(foreign_frame(cob_id, bool(flags & ERROR_FRAME), bool(flags & NOT_DATA)))
                     continue
                 rest.append(frame)
             if waiting and not pending:
