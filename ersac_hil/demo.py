@@ -2,7 +2,8 @@
 
 Child processes, each in its own process group, started in this order and stopped in the
 reverse order (SIGTERM, then SIGKILL after a grace period; also on Ctrl-C/SIGTERM of the demo,
-and they get SIGTERM if the demo itself dies, via PR_SET_PDEATHSIG)::
+and the kernel kills them if the demo itself dies, via PR_SET_PDEATHSIG; a second Ctrl-C kills
+them at once)::
 
     router   ersac-hil router --port P                      embedded Zenoh router
     sim      ersac-hil sim --bus-interface zenoh --bus-channel ersac-R@tcp/127.0.0.1:P --seed N
@@ -54,7 +55,7 @@ from pathlib import Path
 
 from ersac_hil.cli_args import (UsageError, finite_float, non_negative_float, non_negative_int, output_dir,
                                 positive_int, tcp_port)
-from ersac_hil.stack import BUSY_POLL_S, ChildFailed, Stack, cli_argv
+from ersac_hil.stack import BUSY_POLL_S, PAIRS_PER_CORE, ChildFailed, Stack, TooManyPairs, check_pairs, cli_argv
 from protocol.robot import default_description
 from protocol.robot.cli import add_description_argument
 
@@ -230,7 +231,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "access control on the simulator's listener), over Zenoh through the "
                         "router, or on a python-can-remote loopback hub")
     p.add_argument("--fleet", type=positive_int, default=1, metavar="N",
-                   help="simulator/agent pairs behind the one daemon (default 1)")
+                   help=f"simulator/agent pairs behind the one daemon (default 1; at most {PAIRS_PER_CORE} "
+                        "a core this process may use unless --oversubscribe)")
+    p.add_argument("--oversubscribe", action="store_true",
+                   help=f"start --fleet N even above {PAIRS_PER_CORE} pairs a core this process may use")
     p.add_argument("--batch", type=positive_int, metavar="K",
                    help="perturbations per update, run in parallel on the fleet (default: N; 1 = the paper's)")
     p.add_argument("--busy-poll", dest="busy_poll", type=non_negative_float, metavar="S",
@@ -247,8 +251,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _validate(args: argparse.Namespace) -> None:
-    """What the daemon child would refuse (robot name, kappa range...), refused before any child."""
+    """What the daemon child would refuse (robot name, kappa range...) and a fleet larger than
+    the cores this process may use run, refused before any child."""
     from ersac_hil.daemon.config import ConfigError, DaemonConfig
+    if not args.oversubscribe:
+        try:
+            check_pairs(args.fleet, "--fleet", "--oversubscribe")
+        except TooManyPairs as exc:
+            raise UsageError(str(exc)) from None
     try:
         DaemonConfig(robot=args.robot, task=args.task, kappa=args.kappa, episodes=args.episodes,
                      seed=args.seed, batch=args.fleet if args.batch is None else args.batch,

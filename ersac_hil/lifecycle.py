@@ -1,18 +1,26 @@
-"""Process lifecycle in one place: run until SIGINT/SIGTERM, then stop cleanly.
+"""Process lifecycle in one place: run until SIGINT/SIGTERM, then stop cleanly; a second signal
+stops at once.
 
 Every long-running ``ersac-hil`` subcommand is either a ``Service`` (``start()`` / ``stop()``:
 hub, agent, daemon, router) run by ``serve``, or a blocking function that watches a stop
-event (the demo) run by ``until_signal``. Both install the signal handlers, always clean up,
-restore the previous handlers, and return 128 + N after signal N, so no child process,
-session or port outlives the command. (``python -m firmware_sim`` cannot import this package
-and waits for its signals with ``signal.sigwait`` instead.)
+event (the demo, reproduce) run by ``until_signal``. Both install the signal handlers, always
+clean up, restore the previous handlers, and return 128 + N after signal N, so no child
+process, session or port outlives the command. The first SIGINT/SIGTERM asks for a graceful
+stop; a second one, while that stop is under way, kills every process this one started
+(``kill_tree``: its descendants and their process groups, SIGKILL) and exits with 128 + N of
+the first at once. (``python -m firmware_sim`` cannot import this package and waits for its
+signals with ``signal.sigwait`` instead.)
 """
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from collections.abc import Callable
 from typing import Protocol
+
+__all__ = ["SIGNALS", "Service", "descendants", "kill_tree", "serve", "until_signal"]
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -22,8 +30,52 @@ class Service(Protocol):
     def stop(self) -> None: ...
 
 
+def descendants(pid: int) -> list[int]:
+    """The pids of every living descendant of ``pid`` (children first), from ``/proc``; empty
+    where there is no ``/proc``."""
+    children: dict[int, list[int]] = {}
+    try:
+        entries = [e.name for e in os.scandir("/proc") if e.name.isdigit()]
+    except OSError:
+        return []
+    for name in entries:
+        try:
+            with open(f"/proc/{name}/stat", "rb") as f:
+                stat = f.read()
+        except OSError:  # gone meanwhile
+            continue
+        ppid = int(stat[stat.rindex(b")") + 2:].split()[1])
+        children.setdefault(ppid, []).append(int(name))
+    found: list[int] = []
+    todo = [pid]
+    while todo:
+        for child in children.get(todo.pop(0), ()):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def kill_tree(sig: int = signal.SIGKILL, pid: int | None = None) -> int:
+    """Send ``sig`` to every descendant of ``pid`` (default: this process) and to their process
+    groups (which also reach a group's members that were re-parented), never to this process's
+    own group. Returns how many descendants there were."""
+    pid = os.getpid() if pid is None else pid
+    own = os.getpgid(0)
+    found = descendants(pid)
+    for child in found:
+        try:
+            group = os.getpgid(child)
+            if group != own:
+                os.killpg(group, sig)
+            os.kill(child, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+    return len(found)
+
+
 def until_signal(main: Callable[[threading.Event], int], stop: threading.Event | None = None) -> int:
-    """Run ``main(stop)``; SIGINT/SIGTERM set ``stop`` (``main`` must return soon after).
+    """Run ``main(stop)``; SIGINT/SIGTERM set ``stop`` (``main`` must return soon after); a
+    second signal kills this process's tree and exits at once (``os._exit``).
 
     Returns 128 + the first signal's number if one came, else what ``main`` returned.
     """
@@ -32,6 +84,8 @@ def until_signal(main: Callable[[threading.Event], int], stop: threading.Event |
 
     def on_signal(signum, frame) -> None:  # noqa: ANN001
         received.append(signum)
+        if len(received) > 1:
+            _force_exit(128 + received[0])
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in SIGNALS}
@@ -41,6 +95,15 @@ def until_signal(main: Callable[[threading.Event], int], stop: threading.Event |
         for s, handler in previous.items():
             signal.signal(s, handler)
     return 128 + received[0] if received else code
+
+
+def _force_exit(code: int) -> None:
+    killed = kill_tree(signal.SIGKILL)
+    try:
+        os.write(sys.stderr.fileno(), f"second signal: {killed} child process(es) killed, exiting now\n".encode())
+    except (OSError, ValueError):
+        pass
+    os._exit(code)
 
 
 def serve(service: Service, until: threading.Event | None = None) -> int:

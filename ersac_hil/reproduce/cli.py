@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 import threading
 import time
@@ -20,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ersac_hil.cli_args import output_dir
+from ersac_hil.stack import PAIRS_PER_CORE, TooManyPairs, check_pairs
 
 __all__ = ["register", "run_reproduce"]
 
@@ -153,6 +153,12 @@ def _main(args: argparse.Namespace) -> int:
     if args.pairs < 1:
         print("ersac-hil reproduce: --pairs must be >= 1", file=sys.stderr)
         return 2
+    if not args.oversubscribe:
+        try:
+            check_pairs(args.pairs, "--pairs", "--oversubscribe")
+        except TooManyPairs as exc:
+            print(f"ersac-hil reproduce: {exc}", file=sys.stderr)
+            return 2
     if args.lifting_interleave is not None and not 0 <= args.lifting_interleave <= 1000:
         print("ersac-hil reproduce: --lifting-interleave must be in 0..1000 (0: the paper's Algorithm 1)",
               file=sys.stderr)
@@ -162,21 +168,9 @@ def _main(args: argparse.Namespace) -> int:
     if args.lifting_interleave is not None:
         sizes = replace(sizes, lifting_interleave_every=args.lifting_interleave)
         explicit.add(INTERLEAVE)
-    stop = threading.Event()
-    received: list[int] = []
-
-    def on_signal(signum, frame) -> None:  # noqa: ANN001
-        received.append(signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        code = run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
-                             lambda line: print(line, flush=True), explicit)
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    return 128 + received[0] if received else code
+    from ersac_hil.lifecycle import until_signal
+    return until_signal(lambda stop: run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
+                                                   lambda line: print(line, flush=True), explicit))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -199,5 +193,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=output_dir, default="reproduce-results",
                    help="output directory (default ./reproduce-results)")
     p.add_argument("--pairs", type=int, default=1,
-                   help="simulator/agent pairs run in parallel (default 1; one core each)")
+                   help=f"simulator/agent pairs run in parallel (default 1; one core each; at most {PAIRS_PER_CORE} "
+                   "a core this process may use unless --oversubscribe)")
+    p.add_argument("--oversubscribe", action="store_true",
+                   help=f"start --pairs N even above {PAIRS_PER_CORE} pairs a core this process may use")
     p.set_defaults(func=_main)

@@ -1,9 +1,10 @@
 """Child processes of a stack: each in its own process group, its output in a log file, stopped
-with SIGTERM and then SIGKILL, and sent SIGTERM by the kernel if the process that started it
-dies (``PR_SET_PDEATHSIG``), so no child outlives its parent."""
+with SIGTERM and then SIGKILL, and killed by the kernel if the process that started it dies
+(``PR_SET_PDEATHSIG``), so no child outlives its parent."""
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import re
 import signal
@@ -19,13 +20,36 @@ __all__ = ["GRACE_S", "Child", "ChildFailed", "child_env", "cli_argv", "die_with
 GRACE_S = 5.0
 
 _PR_SET_PDEATHSIG = 1
+_libc: ctypes.CDLL | None = None
 
 
-def die_with_parent() -> None:  # runs in the child between fork and exec
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
+def _prctl() -> Callable[..., int] | None:
+    """libc's ``prctl``, loaded in the parent (loading a library between fork and exec of a
+    threaded process can deadlock); ``None`` off Linux."""
+    global _libc
+    if _libc is None:
+        try:
+            _libc = ctypes.CDLL(None, use_errno=True)
+        except OSError:
+            return None
+    return getattr(_libc, "prctl", None)
+
+
+def die_with_parent(parent: int, prctl: Callable[..., int] | None = None) -> None:
+    """Runs in the child between fork and exec: the kernel SIGKILLs the child when the thread
+    that started it dies (``PR_SET_PDEATHSIG``), and it dies at once if ``parent`` (the
+    starter's pid) is already gone (it died between fork and here).
+
+    SIGKILL, not SIGTERM: once the parent is gone nobody waits for a graceful stop (that is
+    the parent's job while it lives, :meth:`Child.stop`), and a child may not act on SIGTERM
+    for a long while (a simulator holds it pending during its set-up; a process in a long
+    native call runs no Python signal handler), which left children re-parented to init.
+    The parent's thread must outlive the child: start children from the main thread or from
+    a thread that stops them before it ends."""
+    if prctl is not None:
+        prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:
+        os.kill(os.getpid(), signal.SIGKILL)
 
 
 class ChildFailed(RuntimeError):
@@ -54,11 +78,12 @@ class Child:
         self._echo = echo
         self._lines: list[str] = []
         self._cond = threading.Condition()
+        self._terminated = False
         self._log = open(self.log_path, "w", buffering=1)
         self._log.write("$ " + " ".join(self.argv) + "\n")
         self.proc = subprocess.Popen(
             self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env=env, process_group=0, preexec_fn=die_with_parent, text=True, bufsize=1)
+            env=env, process_group=0, preexec_fn=functools.partial(die_with_parent, os.getpid(), _prctl()), text=True, bufsize=1)
         self._reader = threading.Thread(target=self._read, name=f"{name}-output", daemon=True)
         self._reader.start()
 
@@ -110,12 +135,22 @@ class Child:
                                       f"see {self.log_path}")
                 self._cond.wait(min(left, 0.2))
 
-    def stop(self, grace_s: float = GRACE_S) -> int | None:
-        """SIGTERM the process group, SIGKILL it after ``grace_s``; returns the exit code."""
-        if self.alive():
+    def terminate(self) -> None:
+        """SIGTERM the process group, once (a second SIGTERM would ask an ``ersac-hil`` child for
+        its forced exit, ``lifecycle.until_signal``)."""
+        if self.alive() and not self._terminated:
+            self._terminated = True
             self._signal(signal.SIGTERM)
+
+    def stop(self, grace_s: float = GRACE_S) -> int | None:
+        """SIGTERM the process group (unless :meth:`terminate` did), SIGKILL it after ``grace_s``;
+        returns the exit code. Idempotent."""
+        if self._log.closed:
+            return self.proc.returncode
+        if self.alive():
+            self.terminate()
             try:
-                self.proc.wait(grace_s)
+                self.proc.wait(max(grace_s, 0.0))
             except subprocess.TimeoutExpired:
                 self._log.write(f"[demo] {self.name} ignored SIGTERM for {grace_s:g} s: SIGKILL\n")
                 self._signal(signal.SIGKILL)

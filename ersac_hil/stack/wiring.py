@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from .cpu import busy_poll_for
-from .process import Child, ChildFailed, child_env, cli_argv
+from .process import GRACE_S, Child, ChildFailed, child_env, cli_argv
 
 __all__ = ["Pair", "Stack"]
 
@@ -99,6 +100,9 @@ class Stack:
         return ["--bus-kwargs", *kwargs] if kwargs else []
 
     def launch(self, name: str, argv: list[str], echo: Callable[[str], None] | None = None) -> Child:
+        """Start ``name`` (``ChildFailed`` instead once ``stop`` is set: nothing starts after Ctrl-C)."""
+        if self.stop.is_set():
+            raise ChildFailed(f"{name}: interrupted before it started")
         child = Child(name, argv, self.logs, self.env, echo)
         self.children.append(child)
         return child
@@ -164,11 +168,19 @@ class Stack:
                 raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; see {child.log_path}")
 
     def close(self) -> None:
-        """Stop every child, newest first; report unexpected exit codes."""
-        for child in reversed(self.children):
-            rc = child.stop()
-            if rc not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM, 128 + signal.SIGINT):
-                self.say(f"{child.name} exited with {rc} (log {child.log_path})")
+        """Stop every child: all but the router at once (SIGTERM to each, newest first, then
+        SIGKILL to those still running after one common grace period), then the router, so
+        the others close their sessions while it still routes; report unexpected exit codes."""
+        children = list(reversed(self.children))
+        router = [c for c in children if c.name == "router"]
+        for wave in ([c for c in children if c not in router], router):
+            for child in wave:
+                child.terminate()
+            deadline = time.monotonic() + GRACE_S
+            for child in wave:
+                rc = child.stop(deadline - time.monotonic())
+                if rc not in (0, None, -signal.SIGTERM, 128 + signal.SIGTERM, 128 + signal.SIGINT):
+                    self.say(f"{child.name} exited with {rc} (log {child.log_path})")
         self.children = []
 
     def __enter__(self) -> Stack:

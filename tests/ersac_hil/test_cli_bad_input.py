@@ -87,7 +87,8 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
                    (("{tmp}/certs", "--router", "nonsense"), "is not of the form")],
     "reproduce": [(("bracing", "--seeds", "0", "--out", "{tmp}/results"), "--seeds must be"),
                   (("juggling", "--out", "{tmp}/results"), "invalid choice"),
-                  (("bracing", "--out", "/proc/results"), "cannot write")],
+                  (("bracing", "--out", "/proc/results"), "cannot write"),
+                  (("bracing", "--quick", "--pairs", "1000", "--out", "{tmp}/results"), "--oversubscribe starts")],
     "dashboard": [(("--port", "99999", *Z), "not in 0..65535"), (("--robot", "a/b", *Z), "not a valid key chunk")],
     "demo": [
         (("--episodes", "0", "--out", "{tmp}/demo"), "must be a positive integer"),
@@ -96,6 +97,7 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
         (("--dashboard-port", "99999", "--out", "{tmp}/demo"), "not a TCP port"),
         (("--out", "/proc/demo"), "cannot write"),
         (("--description", "{tmp}/none.toml", "--out", "{tmp}/demo"), "none.toml: cannot read it"),
+        (("--fleet", "1000", "--out", "{tmp}/demo"), "--oversubscribe starts"),
     ],
     "sim": [
         (("--bus-interface", "virtual", "--bus-channel", "x", "--control-period", "0"), "--control-period must be"),
