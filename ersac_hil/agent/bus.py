@@ -62,6 +62,7 @@ from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
+from protocol.can.fastpath import BurstNotifier
 from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.objects import Scale
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
@@ -185,9 +186,8 @@ class AgentBus:
                           for n, m in node.rpdo.map.items() if m.enabled]
         known = _receivable(self.devices)
         self._tpdos, self._encoder = TpdoCollector(sizes, known), self._command_encoder(rpdos)
-        intercept = getattr(net.notifier, "intercept", None)
-        if intercept is not None:  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
-            intercept(self._tpdos.take)
+        if isinstance(net.notifier, BurstNotifier):  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
+            net.notifier.intercept(self._tpdos.take)
         else:
             for cob_id in sizes:
                 net.subscribe(cob_id, self._tpdos.handler(cob_id))

@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 
-from ersac_hil.canbus.zenoh_bus import ERROR_FRAME, NOT_DATA, Frame
+from protocol.can.fastpath import ERROR_FRAME, NOT_DATA, Frame
 
 __all__ = ["TpdoCollector", "foreign_frame"]
 
@@ -99,7 +99,7 @@ class TpdoCollector:
         return on_frame
 
     def take(self, frames: list[Frame], timestamp: float) -> list[Frame]:
-        """A burst interceptor (``ersac_hil.canbus.zenoh_bus.PushNotifier.intercept``): keeps
+        """A burst interceptor (``protocol.can.fastpath.BurstNotifier.intercept``): keeps
         the expected data frames of ``frames`` as ``handler`` would, one after the other, and
         returns the others in order."""
         sizes, pending, kept = self._sizes, self._pending, self._frames

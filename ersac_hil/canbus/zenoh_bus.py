@@ -73,7 +73,7 @@ message's; error and remote frames are not given to ``on_frame``; with ``can_fil
 every listener gets messages).
 
 A whole sample at once (:meth:`PushNotifier.intercept`): an interceptor gets the frames of
-each sample in one call, as :data:`Frame` tuples, before the listeners (and before
+each sample in one call, as ``protocol.can.fastpath.Frame`` tuples, before the listeners (and before
 ``can_filters``); it consumes the frames it handles and returns the others, which the
 listeners then get as usual - e.g. the agent takes the TPDOs of a SYNC with one call and one
 lock per burst instead of per frame and hands canopen the rest.
@@ -102,11 +102,13 @@ from can.bus import BusABC, CanProtocol
 
 from ersac_hil.canbus.direct import listener_config
 from ersac_hil.zenoh_session import ZenohConfigError, ZenohOptions, open_session, resolve_config
+from protocol.can.fastpath import (FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE, NOT_DATA,
+                                    BurstNotifier, BurstSender, Frame, FramePusher)
 from protocol.zenoh.errors import KeySpaceError
 from protocol.zenoh.keys import validate_chunk
 
-__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "Frame", "NOT_DATA", "ERROR_FRAME",
-           "encode_frame", "encode_data_frames", "decode_frame", "decode_frames", "parse_channel"]
+__all__ = ["ZenohBus", "PushNotifier", "DEFAULT_PREFIX", "low_latency", "encode_frame", "encode_data_frames",
+           "decode_frame", "decode_frames", "parse_channel"]
 
 DEFAULT_PREFIX = "can"
 #: How long ``shutdown`` waits for a put in progress on another thread (seconds).
@@ -116,14 +118,7 @@ SHUTDOWN_WAIT_S = 5.0
 RX_CAPACITY = 1024
 _log = logging.getLogger(__name__)
 _HEADER = struct.Struct("<IBBB")
-_EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = (1 << i for i in range(6))
-NOT_DATA = _REMOTE | _ERROR
-#: The flag of an error frame in a ``Frame``.
-ERROR_FRAME = _ERROR
-"""Flags of the frames that carry no data (remote and error frames; see the wire format)."""
-Frame = tuple[int, int, int, bytearray]
-"""One received frame as the push path handles it: ``(arbitration id, flags, dlc, data)``
-(flags as in the wire format)."""
+_EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = FLAG_EXTENDED, FLAG_REMOTE, FLAG_ERROR, FLAG_FD, FLAG_BRS, FLAG_ESI
 
 
 def encode_frame(msg: can.Message) -> bytes:
@@ -250,7 +245,7 @@ def _flag(value: bool | str, name: str) -> bool:
     raise ValueError(f"zenoh CAN bus: {name} must be true or false, got {value!r}")
 
 
-class ZenohBus(BusABC):
+class ZenohBus(BusABC, BurstSender, FramePusher):
     """A python-can bus whose frames travel as Zenoh samples (see the module doc).
 
     Args:
@@ -436,7 +431,7 @@ class ZenohBus(BusABC):
             receiver.join(SHUTDOWN_WAIT_S)  # its channel is closed: it returns at once
 
 
-class PushNotifier:
+class PushNotifier(BurstNotifier):
     """The ``can.Notifier`` interface canopen uses (``add_listener``, ``remove_listener``,
     ``stop``, ``exception``) for frames pushed by a :class:`ZenohBus` (see the module doc)."""
 

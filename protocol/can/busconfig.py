@@ -31,6 +31,8 @@ import canopen
 
 from protocol.can.devices import BITRATE as DEFAULT_BITRATE  # the default robot description's
 
+from .fastpath import BurstSender, FramePusher
+
 log = logging.getLogger(__name__)
 
 
@@ -156,20 +158,28 @@ NOTIFIER_CYCLE_S = 0.05
 (canopen's default of 1 s made every shutdown over the hub last a second)."""
 
 
-def open_network(config: BusConfig) -> canopen.Network:
+class Network(canopen.Network):
+    """canopen's ``Network`` with the bus's declared fast paths (``protocol.can.fastpath``)
+    looked up once, when :func:`open_network` opens it: ``burst`` is the bus if it is a
+    ``BurstSender``, else ``None``."""
+
+    burst: BurstSender | None = None
+
+
+def open_network(config: BusConfig) -> Network:
     """A connected canopen ``Network`` on a new bus (``disconnect()`` closes both).
 
-    A bus that can push frames to listeners on its own receive thread (``push_notifier``,
-    e.g. CAN over Zenoh) gets no ``can.Notifier`` polling thread: one thread hand-over less
-    per frame."""
+    A bus that pushes frames to listeners on its own receive thread (a
+    ``fastpath.FramePusher``, e.g. CAN over Zenoh) gets no ``can.Notifier`` polling thread:
+    one thread hand-over less per frame."""
     bus = open_bus(config)
-    network = canopen.Network(bus)
+    network = Network(bus)
     network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-    push = getattr(bus, "push_notifier", None)
-    if push is None:
+    network.burst = bus if isinstance(bus, BurstSender) else None
+    if not isinstance(bus, FramePusher):
         return network.connect()
     network.listeners[:] = [FrameListener(network)]
-    network.notifier = push(network.listeners)
+    network.notifier = bus.push_notifier(network.listeners)
     return network
 
 
@@ -185,24 +195,15 @@ class FrameListener(canopen.network.MessageListener):
             log.error(str(exc))
 
 
-def send_frames(network: canopen.Network, frames: list[tuple[int, bytes]]) -> None:
+def send_frames(network: Network, frames: list[tuple[int, bytes]]) -> None:
     """Send standard-id data frames ``(COB-ID, data)`` in this order: as one burst where the
-    bus has ``send_many`` (CAN over Zenoh: one message for a SYNC's worth of PDOs), else one
-    by one (``Network.send_message``)."""
-    bus = network.bus
-    burst = getattr(bus, "send_data_frames", None)
-    if burst is not None:
-        with network.send_lock:
-            burst(frames)
-        network.check()
-        return
-    many = getattr(bus, "send_many", None)
-    if many is None:
+    bus is a ``fastpath.BurstSender`` (CAN over Zenoh: one message for a SYNC's worth of
+    PDOs), else one by one (``Network.send_message``)."""
+    burst = network.burst
+    if burst is None:
         for cob_id, data in frames:
             network.send_message(cob_id, data)
         return
-    msgs = [can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, check=False)
-            for cob_id, data in frames]
     with network.send_lock:
-        many(msgs)
+        burst.send_data_frames(frames)
     network.check()

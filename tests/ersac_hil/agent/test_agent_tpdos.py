@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.agent.tpdos import TpdoCollector
-from ersac_hil.canbus.zenoh_bus import NOT_DATA
+from protocol.can.fastpath import NOT_DATA
 
 SIZES = {0x181: 4, 0x182: 4, 0x281: 1}
 FRAMES = {0x181: struct.pack("<hh", -3, 7), 0x182: struct.pack("<i", 123456), 0x281: b"\x05"}
