@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
 from ersac_hil.stack import Stack, busy_poll_for  # noqa: E402
 from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
-from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
+from protocol.zenoh import DEFAULT_PREFIX, EpisodeRequest, get_task  # noqa: E402
 
 THETA = {"bracing": (0.5,), "lifting": (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)}
 
@@ -55,7 +55,7 @@ def run_fleet(n: int, task: str, m: int, logs: Path, tag: str,
                busy_poll=busy_poll) as stack:
         stack.start()
         session = open_session(make_config("client", connect=(stack.endpoint,)))
-        fleet = Fleet(session, "ersac", [p.robot for p in stack.pairs], 300.0, stop)
+        fleet = Fleet(session, DEFAULT_PREFIX, [p.robot for p in stack.pairs], 300.0, stop)
         try:
             deadline = time.monotonic() + 120
             while len(fleet.ready()) < n:

@@ -35,8 +35,9 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from ersac_hil.cli_args import output_dir
+from ersac_hil.cli_args import add_prefix_argument, output_dir
 from ersac_hil.roles import ROLES, access_control, identities
+from protocol.zenoh.keys import DEFAULT_PREFIX
 
 __all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "common_name", "router_config",
            "client_config", "register"]
@@ -134,7 +135,7 @@ def _tls(files: Path, **names: str) -> dict[str, Any]:
     return {"link": {"tls": {**tls, "enable_mtls": True}}}
 
 
-def router_config(files: Path, listen: Sequence[str], prefix: str = "ersac",
+def router_config(files: Path, listen: Sequence[str], prefix: str = DEFAULT_PREFIX,
                   robots: Sequence[str] = ()) -> dict[str, Any]:
     """The router's Zenoh config: TLS listeners with client certificates required, the
     roles' access control (per-robot identities for ``robots``). ``files`` is where the
@@ -161,7 +162,7 @@ def client_config(role: str, files: Path, connect: Sequence[str]) -> dict[str, A
 
 
 def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER,),
-               hosts: Sequence[str] = (), prefix: str = "ersac", install_dir: str | Path | None = None,
+               hosts: Sequence[str] = (), prefix: str = DEFAULT_PREFIX, install_dir: str | Path | None = None,
                days: int = DEFAULT_DAYS, force: bool = False, robots: Sequence[str] = ()) -> CertSet:
     """Create the CA, a key and certificate per role and a Zenoh json5 config per role.
 
@@ -304,7 +305,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"router TLS endpoint, repeatable (default {DEFAULT_ROUTER}); clients connect to the first")
     q.add_argument("--host", action="append", metavar="NAME",
                    help="another name or address the router is reached at (its certificate), repeatable")
-    q.add_argument("--prefix", default="ersac", help="key prefix the access control covers (default ersac)")
+    add_prefix_argument(q, "key prefix the access control covers")
     q.add_argument("--install-dir", metavar="PATH",
                    help="where the files will live on the machines (paths in the configs; default DIR)")
     q.add_argument("--days", type=int, default=DEFAULT_DAYS, help=f"validity (default {DEFAULT_DAYS})")

@@ -130,3 +130,9 @@ def usable_bus(interface: str | None, channel: str | None, bitrate: int | None,
     except BusConfigError as exc:
         raise UsageError(str(exc)) from None
     return config
+
+
+def add_prefix_argument(parser: argparse.ArgumentParser, what: str = "key prefix") -> None:
+    """``--prefix``: the Zenoh key prefix, by default the contract's (``protocol.zenoh.keys``)."""
+    from protocol.zenoh.keys import DEFAULT_PREFIX
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"{what} (default {DEFAULT_PREFIX})")

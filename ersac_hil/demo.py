@@ -55,11 +55,15 @@ from pathlib import Path
 
 from ersac_hil.cli_args import (UsageError, finite_float, non_negative_float, non_negative_int, output_dir,
                                 positive_int, tcp_port)
+from ersac_hil.daemon.config import task_defaults
 from ersac_hil.stack import BUSY_POLL_S, PAIRS_PER_CORE, ChildFailed, Stack, TooManyPairs, check_pairs, cli_argv
 from protocol.robot import default_description
 from protocol.robot.cli import add_description_argument
 
 __all__ = ["register", "DemoConfig", "run_demo"]
+
+PAPER_EPISODES = task_defaults("bracing").episodes
+"""The demo's learning budget: the paper's bracing run (whatever ``--task``)."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +97,7 @@ class DemoConfig:
 
     task: str = "bracing"
     kappa: float = 2.0
-    episodes: int = 45
+    episodes: int = PAPER_EPISODES
     seed: int = 1
     out: Path = Path("demo-report")
     robot: str = "ubot1"
@@ -215,7 +219,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="router, simulator, agent and learner on loopback; a report")
     p.add_argument("--task", choices=("bracing", "lifting"), default="bracing")
     p.add_argument("--kappa", type=finite_float, default=2.0, help="risk sensitivity (default 2)")
-    p.add_argument("--episodes", type=positive_int, default=45, help="episodes to learn for (default 45)")
+    p.add_argument("--episodes", type=positive_int, default=PAPER_EPISODES,
+                   help=f"episodes to learn for (default {PAPER_EPISODES}, the paper's bracing run)")
     p.add_argument("--seed", type=non_negative_int, default=1, help="run and simulator seed (default 1)")
     p.add_argument("--out", type=output_dir, default="demo-report",
                    help="report directory (default ./demo-report)")

@@ -55,6 +55,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from protocol.zenoh.keys import DEFAULT_PREFIX
+
 __all__ = ["ROLES", "CLIENT_ROLES", "PERMISSIONS", "CAN_KEYS", "CAN_ROLES", "ROBOT_ROLES", "ROS2_PUBLISHERS",
            "ROS2_READERS", "ros2_rules", "identities",
            "parse_identity", "access_control", "permitted"]
@@ -207,7 +209,7 @@ def parse_identity(common_name: str) -> tuple[str, str | None]:
                      f"{'/'.join(ROBOT_ROLES)}-<robot>)")
 
 
-def access_control(prefix: str = "ersac", robot: str = "*", robots: Sequence[str] = (),
+def access_control(prefix: str = DEFAULT_PREFIX, robot: str = "*", robots: Sequence[str] = (),
                    ros_domain: int = 0) -> dict[str, Any]:
     """The router's ``access_control`` section (Zenoh 1.10 schema) for the roles above.
 

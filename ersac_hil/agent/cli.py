@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from ersac_hil.cli_args import UsageError, fail, positive_float, positive_int, usable_bus
+from ersac_hil.cli_args import UsageError, add_prefix_argument, fail, positive_float, positive_int, usable_bus
 
 log = logging.getLogger(__name__)
 
@@ -12,7 +12,7 @@ log = logging.getLogger(__name__)
 def register(subparsers) -> None:
     p = subparsers.add_parser("agent", help="robot-side agent: Zenoh episode/run -> CANopen robot")
     p.add_argument("--robot", required=True, help="robot name (key chunk), e.g. ubot1")
-    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    add_prefix_argument(p)
     p.add_argument("--bus-interface", help="python-can interface (socketcan, remote, virtual)")
     p.add_argument("--bus-channel", help="vcan0 / can0 / ws://127.0.0.1:PORT/ ...")
     p.add_argument("--bitrate", type=positive_int, default=None)

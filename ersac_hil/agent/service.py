@@ -45,7 +45,7 @@ from ersac_hil.zenoh_session import ZenohOptions, open_session, resolve_config
 from protocol.can.busconfig import BusConfig
 from protocol.can.devices import TESTBENCH
 from protocol.robot import RobotDescription, default_description
-from protocol.zenoh import (AgentState, EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply,
+from protocol.zenoh import (DEFAULT_PREFIX, AgentState, EpisodeDone, EpisodeRequest, EpisodeResult, ErrorReply,
                             EstopCommand, InvalidField, KeySpace, PayloadError)
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ class AgentConfig:
     record_series: str | None = None
     ros2: Ros2Options | None = None
     record: str | None = None
-    prefix: str = "ersac"
+    prefix: str = DEFAULT_PREFIX
     timing: BusTiming = BusTiming()
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     pacing: str = "auto"

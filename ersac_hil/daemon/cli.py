@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ersac_hil.cli_args import UsageError, file_in_dir, output_dir, positive_float, tcp_port
+from ersac_hil.cli_args import UsageError, add_prefix_argument, file_in_dir, output_dir, positive_float, tcp_port
 
 __all__ = ["register"]
 
@@ -285,7 +285,7 @@ def _report(args: argparse.Namespace) -> int:
 def _client_options(p: argparse.ArgumentParser) -> None:
     from ersac_hil.zenoh_session import add_zenoh_arguments
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
-    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    add_prefix_argument(p)
     add_zenoh_arguments(p)
     p.add_argument("--timeout", type=positive_float, default=10.0, help="seconds per request (default 10)")
     p.add_argument("--json", action="store_true", help="print the reply payload as JSON")

@@ -36,7 +36,7 @@ import msgspec
 from msgspec import Meta
 from msgspec.structs import force_setattr
 
-from protocol.zenoh import KAPPA_MAX, KAPPA_MIN, InvalidField, KeySpace, get_task
+from protocol.zenoh import DEFAULT_PREFIX, KAPPA_MAX, KAPPA_MIN, InvalidField, KeySpace, get_task
 from protocol.zenoh.codec import ID_PATTERN
 from protocol.zenoh.fields import Finite, Name, NonNegative, Positive, Record, converting
 from protocol.zenoh.tasks import TaskName
@@ -184,7 +184,7 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     epsilon: Positive | None = None
     lr_range: tuple[Positive, Positive] | None = None
     weights: dict[Name, NonNegative] | None = None
-    prefix: str = "ersac"
+    prefix: str = DEFAULT_PREFIX
     zenoh: tuple[str, ...] = ()
     zenoh_config: str | None = None
     insecure: bool = False

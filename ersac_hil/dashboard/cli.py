@@ -18,6 +18,7 @@ import argparse
 import ipaddress
 import sys
 
+from ersac_hil.cli_args import add_prefix_argument
 from ersac_hil.zenoh_session import ZenohOptions, add_zenoh_arguments, zenoh_options
 
 __all__ = ["register", "DashboardService", "DEFAULT_PORT", "CONTROL_ROLES", "is_read_only"]
@@ -132,7 +133,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Serve a live dashboard of one robot's learner (a Zenoh client "
                                    "of its control plane) on http://HOST:PORT/.")
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
-    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    add_prefix_argument(p)
     add_zenoh_arguments(p)
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT,

@@ -9,6 +9,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from protocol.zenoh.keys import DEFAULT_PREFIX
+
 from .cpu import busy_poll_for
 from .process import GRACE_S, Child, ChildFailed, child_env, cli_argv
 
@@ -121,7 +123,7 @@ class Stack:
         sims = []
         for k in range(1, self._n + 1):
             tag = "" if self._n == 1 else str(k)
-            prefix = "ersac" if k == 1 or self._fleet else f"ersac{k}"
+            prefix = DEFAULT_PREFIX if k == 1 or self._fleet else f"{DEFAULT_PREFIX}{k}"
             robot = self.robot if k == 1 or not self._fleet else f"{self.robot}-{k}"
             if self._can == "hub":
                 hub_port = free_tcp_port()
