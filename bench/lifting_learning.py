@@ -45,7 +45,7 @@ from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.daemon.config import TASK_DEFAULTS  # noqa: E402
 from ersac_hil.learner import CostWeights  # noqa: E402
 from ersac_hil.learner.ersac import ERSAC  # noqa: E402
-from ersac_hil.reproduce.lifting import GOAL_HEIGHT_M, GOAL_TOLERANCE_M  # noqa: E402
+from ersac_hil.reproduce.trials import lifted as _lifted  # noqa: E402
 from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 from protocol.zenoh import EpisodeRequest, EpisodeResult, get_task  # noqa: E402
@@ -85,9 +85,7 @@ def run_episode(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, seed: i
 
 def lifted(result: EpisodeResult) -> bool:
     """The bottle held and at the goal height at the end (``reproduce lifting``'s success)."""
-    h = result.telemetry.get("final_bottle_height_m", float("nan"))
-    return (not result.failures.get("bottle_dropped") and not result.failures.get("fallen")
-            and abs(h - GOAL_HEIGHT_M) <= GOAL_TOLERANCE_M)
+    return _lifted(result.telemetry, result.failures)
 
 
 def test_policy(runner: EpisodeRunner, bus: AgentBus, theta: np.ndarray, trials: int,

@@ -47,7 +47,7 @@ from ersac_hil.agent.robot import UBOT, RobotParameters
 from protocol.can import objects as obj
 from protocol.can.objects import SPLINE_MAX_KNOTS
 from protocol.can.spline import hermite_sample
-from protocol.zenoh import TASKS
+from protocol.zenoh.tasks import LIFTING_GOAL_HEIGHT_M
 
 
 @dataclass(frozen=True)
@@ -78,9 +78,8 @@ class BracingPolicy:
             raise ValueError(f"invalid bracing map {self}")
 
     def stiffness(self, theta: float) -> float:
-        """K(theta) [N m/rad] for theta in [0, 1]."""
-        spec = TASKS["bracing"]
-        theta = spec.check_theta((theta,))[0]
+        """K(theta) [N m/rad] for theta in [0, 1] (the contract's bounds, checked where the
+        request arrives: ``EpisodeRequest``)."""
         return self.k_min * (self.k_max / self.k_min) ** theta
 
     def damping(self, theta: float) -> float:
@@ -144,7 +143,7 @@ class LiftingPolicy:
         velocity_limit: joint velocity limit for the check [rad/s].
         check_dt: sampling step of the limit check [s].
     """
-    goal_height: float = 1.2
+    goal_height: float = LIFTING_GOAL_HEIGHT_M
     goal_elbow: float = 0.3
     start: tuple[float, float] = (0.0, 0.95)
     velocity_limit: float = UBOT.arm_velocity_limit
@@ -156,13 +155,13 @@ class LiftingPolicy:
         return (self.robot.arm_pose_for_height(self.goal_height, self.goal_elbow), self.goal_elbow)
 
     def spline(self, theta, start: tuple[float, float] | None = None) -> Spline:
-        """The checked, quantised spline for ``theta`` from ``start`` (default: nominal).
+        """The checked, quantised spline for ``theta`` (7 values within the contract's bounds,
+        checked where the request arrives: ``EpisodeRequest``) from ``start`` (default: nominal).
 
         Raises:
-            protocol.zenoh.InvalidField: theta has the wrong shape or is out of bounds.
             LimitViolation: the trajectory leaves a joint range or exceeds the velocity limit.
         """
-        s1, e1, s2, e2, d1, d2, d3 = TASKS["lifting"].check_theta(theta)
+        s1, e1, s2, e2, d1, d2, d3 = theta
         q_start = self.start if start is None else start
         times = _quantise(np.cumsum([0.0, d1, d2, d3]), obj.KNOT_TIME)
         positions = _quantise(np.array([q_start, (s1, e1), (s2, e2), self.goal], dtype=float),

@@ -58,7 +58,7 @@ class Sizes:
     """How much of every experiment to run (see the module doc)."""
 
     bracing_seeds: int = 10
-    bracing_episodes: int = 45
+    bracing_episodes: int = task_defaults("bracing").episodes
     landscape_step: float = 0.05
     landscape_episodes: int = LANDSCAPE_EPISODES
     random_policies: int = 52

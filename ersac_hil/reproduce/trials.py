@@ -24,8 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from protocol.zenoh import EpisodeRequest, EpisodeResult, get_task
+from protocol.zenoh.tasks import LIFTING_GOAL_HEIGHT_M, LIFTING_GOAL_TOLERANCE_M
 
-__all__ = ["TrialSpec", "Trial", "TrialStore", "TrialFailed", "run_trial"]
+__all__ = ["TrialSpec", "Trial", "TrialStore", "TrialFailed", "run_trial", "lifted"]
 
 #: Attempts of one trial before giving up (faults under load are retried).
 MAX_ATTEMPTS = 10
@@ -90,6 +91,19 @@ class Trial:
     def cost(self, weights: Mapping[str, float] | None = None) -> float:
         """The total cost under ``weights`` (default: the task's)."""
         return get_task(self.spec.task).total_cost(self.cost_terms, weights)
+
+    def lifted(self) -> bool:
+        """An ``ok`` lifting trial that succeeded (:func:`lifted`)."""
+        return self.ok and lifted(self.telemetry, self.failures)
+
+
+def lifted(telemetry: Mapping[str, float], failures: Mapping[str, bool]) -> bool:
+    """A lifting episode's success (the paper's Fig. 4: "bottle above the shoulder, goal height
+    reached"): the bottle neither dropped nor the robot fallen, and the bottle's final height
+    within the contract's tolerance of the goal height."""
+    h = telemetry.get("final_bottle_height_m", float("nan"))
+    return (not failures.get("bottle_dropped", False) and not failures.get("fallen", False)
+            and abs(h - LIFTING_GOAL_HEIGHT_M) <= LIFTING_GOAL_TOLERANCE_M)
 
 
 class TrialStore:

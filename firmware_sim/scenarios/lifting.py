@@ -60,8 +60,6 @@ class Lifting(Scenario):
         "shoulder_right": 0.0, "elbow_right": 0.95,
     }
     checks_substeps: ClassVar[bool] = True
-    goal_height = 1.2
-    """m, target height of the bottle centre."""
     grasp_force_limit = 25.0
     """N per hand, nominal grip limit (about 5x the static share of the bottle's weight; a
     smooth 3 s lift peaks near 10 N)."""

@@ -36,7 +36,7 @@ from typing import Any, Literal
 from .errors import InvalidField
 from .fields import Finite, Name, NonNegative, Positive, Record, convert
 
-__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task"]
+__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task", "LIFTING_GOAL_HEIGHT_M", "LIFTING_GOAL_TOLERANCE_M"]
 
 
 class TaskSpec(Record, frozen=True):
@@ -178,6 +178,13 @@ TASKS: Mapping[str, TaskSpec] = MappingProxyType(
 
 #: Wire names of the tasks, in a fixed order.
 TASK_NAMES: tuple[str, ...] = tuple(TASKS)
+
+#: Lifting's goal: the bottle's centre this high above the floor [m] (the paper's ~120 cm),
+#: the height the agent's goal pose and ``h_error_sq`` refer to.
+LIFTING_GOAL_HEIGHT_M = 1.2
+#: How close to :data:`LIFTING_GOAL_HEIGHT_M` the bottle counts as at the goal [m] (the agent's
+#: end condition, the experiments' success criterion).
+LIFTING_GOAL_TOLERANCE_M = 0.05
 
 
 def get_task(name: Any, field: str = "task") -> TaskSpec:

@@ -15,6 +15,7 @@ from firmware_sim.scenarios import Lifting
 from firmware_sim.scenarios.lifting import fill_factor
 from firmware_sim.simulator import FailureKind, Simulator
 from helpers.plant import Balancer, balance_gain
+from protocol.zenoh.tasks import LIFTING_GOAL_HEIGHT_M
 
 ARM = ("shoulder_left", "elbow_left", "shoulder_right", "elbow_right")
 START = (Lifting.pose["shoulder_left"], Lifting.pose["elbow_left"])
@@ -62,14 +63,14 @@ def test_bottle_starts_near_the_ground_in_the_hands(sim):
 
 def test_smooth_lift_reaches_the_goal_height(sim, gains):
     r = lift(sim, gains, [0.0, 1.5, 3.0], [START[0], 1.6, 3.1], [START[1], 1.8, 0.1])
-    assert r["final"] == pytest.approx(Lifting.goal_height, abs=0.08)
+    assert r["final"] == pytest.approx(LIFTING_GOAL_HEIGHT_M, abs=0.08)
     assert not r["truth"].bottle_dropped and not r["truth"].fallen
     assert not [e for e in r["events"] if e.kind == FailureKind.BOTTLE_DROPPED]
 
 
 def test_too_low_spline_misses_the_height(sim, gains):
     r = lift(sim, gains, [0.0, 1.5, 3.0], [START[0], 1.0, 1.8], [START[1], 1.5, 1.0])
-    assert r["final"] < Lifting.goal_height - 0.1
+    assert r["final"] < LIFTING_GOAL_HEIGHT_M - 0.1
     assert not r["truth"].bottle_dropped
 
 
@@ -106,7 +107,7 @@ def test_slow_lift_stalls_near_shoulder_height(sim, gains, seed):
 @pytest.mark.parametrize("seed", [0, 7])
 def test_the_same_path_swung_in_two_seconds_gets_over(sim, gains, seed):
     r = line_lift(sim, gains, 2.0, seed)
-    assert r["final"] == pytest.approx(Lifting.goal_height, abs=0.05)
+    assert r["final"] == pytest.approx(LIFTING_GOAL_HEIGHT_M, abs=0.05)
     assert not r["truth"].bottle_dropped and not r["truth"].fallen
 
 

@@ -1,6 +1,6 @@
 """What a task is to the episode runner (after dm_control's ``Task``).
 
-A ``Task`` turns theta into a plan (pure: validated before anything moves), configures the
+A ``Task`` turns theta (validated by the contract) into a plan (pure: checked before anything moves), configures the
 robot for it, gives the arm commands of every cycle, says when the episode is over, and turns
 the episode's telemetry into the contract's cost terms. The runner owns everything that is the
 same for every task: scenario reset, NMT, the SYNC loop with the LQR balance, faults, EMCY and
@@ -8,7 +8,7 @@ status flags, the result. It never looks at a task's name.
 
 Call order in one episode (``EpisodeRunner.run``)::
 
-    setup = task.plan(theta)                      # pure; InvalidField / RequestRefused
+    setup = task.plan(request.theta)              # pure; RequestRefused (theta: the contract's)
     reset_scenario(bus, task.scenario, seed)      # test bench
     commands = task.configure(bus, setup)         # SDO in PRE-OPERATIONAL; first cycle's commands
     end = task.end_condition(setup, period_s)     # fresh per episode (may count cycles)
@@ -100,8 +100,9 @@ class Task(ABC, Generic[Setup]):
 
     @abstractmethod
     def plan(self, theta: Sequence[float]) -> Setup:
-        """theta -> what the robot will do (pure). Raises ``InvalidField`` (shape, bounds)
-        or ``RequestRefused`` (e.g. a trajectory outside the joint limits)."""
+        """theta -> what the robot will do (pure). ``theta`` is the request's, validated once by
+        the contract (``EpisodeRequest``: ``TaskSpec.check_theta``, shape and bounds); raises
+        ``RequestRefused`` (e.g. a trajectory outside the joint limits)."""
 
     @abstractmethod
     def configure(self, bus: AgentBus, setup: Setup) -> Commands:

@@ -58,7 +58,7 @@ class BracingTask(Task[BracingSetup]):
         return Balance(self.policy.pose, 0.0, self.strike_acc)
 
     def plan(self, theta: Sequence[float]) -> BracingSetup:
-        (stiffness,) = self.spec.check_theta(theta)
+        (stiffness,) = theta
         return BracingSetup(self.policy.impedance(stiffness), self.policy.pose)
 
     def configure(self, bus: AgentBus, setup: BracingSetup) -> Commands:

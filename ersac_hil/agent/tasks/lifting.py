@@ -53,6 +53,7 @@ from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can import objects as obj
 from protocol.can.devices import TESTBENCH
 from protocol.can.objects import Control, EmcyCode, Index, Scenario
+from protocol.zenoh.tasks import LIFTING_GOAL_TOLERANCE_M
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ class LiftingTask(Task[LiftingSetup]):
     """
     policy: LiftingPolicy = LiftingPolicy()
     payload_kg_held: float = 1.0
-    goal_tolerance_m: float = 0.05
+    goal_tolerance_m: float = LIFTING_GOAL_TOLERANCE_M
     rest_speed_m_s: float = 0.05
     rest_s: float = 0.25
     floor_height_m: float = 0.05
@@ -93,8 +94,8 @@ class LiftingTask(Task[LiftingSetup]):
         return Balance(self.policy.start, self.payload_kg_held, None)
 
     def plan(self, theta: Sequence[float]) -> LiftingSetup:
-        checked = self.spec.check_theta(theta)
-        return LiftingSetup(checked, self.policy.spline(checked))
+        theta = tuple(theta)
+        return LiftingSetup(theta, self.policy.spline(theta))
 
     def configure(self, bus: AgentBus, setup: LiftingSetup) -> Commands:
         pose = self.policy.start

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.agent.errors import LimitViolation
 from ersac_hil.agent.tasks import BracingTask, LiftingTask, UnknownTask, default_tasks, lookup
-from protocol.zenoh import TASKS, InvalidField
+from protocol.zenoh import TASKS, EpisodeRequest, InvalidField
 
 
 def test_every_contract_task_is_served_by_default_and_nothing_else():
@@ -37,10 +37,14 @@ def test_bracing_plan_is_the_policy_impedance(theta):
     assert setup.impedance == task.policy.impedance(theta) and setup.pose == task.policy.pose
 
 
-@pytest.mark.parametrize("theta", [(1.1,), (-0.1,), (0.5, 0.5), (float("nan"),)])
-def test_bracing_plan_refuses_theta_outside_the_contract(theta):
+@pytest.mark.parametrize("task, theta", [("bracing", (1.1,)), ("bracing", (-0.1,)), ("bracing", (0.5, 0.5)),
+                                         ("bracing", (float("nan"),)), ("lifting", (1.2,) * 6),
+                                         ("lifting", (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 2.5))])
+def test_theta_outside_the_contract_is_refused_once_where_the_request_arrives(task, theta):
+    """The one check of theta's shape and bounds: the contract's, when the request is made
+    (or decoded); a task's plan only ever gets a checked theta."""
     with pytest.raises(InvalidField):
-        BracingTask().plan(theta)
+        EpisodeRequest("ep", task, theta, 0)
 
 
 def test_lifting_plan_checks_the_spline_before_anything_moves():
