@@ -17,7 +17,7 @@ import sys
 import time
 from collections.abc import Callable
 
-from ersac_hil.cli_args import UsageError, fail, positive_float
+from ersac_hil.cli_args import UsageError, add_prefix_argument, fail, positive_float
 
 __all__ = ["AgentClient", "register", "agent_state_line"]
 
@@ -154,7 +154,7 @@ def _go(args: argparse.Namespace) -> int:
 def _options(p: argparse.ArgumentParser) -> None:
     from ersac_hil.zenoh_session import add_zenoh_arguments
     p.add_argument("--robot", default="ubot1", help="robot name (default ubot1)")
-    p.add_argument("--prefix", default="ersac", help="key prefix (default ersac)")
+    add_prefix_argument(p)
     add_zenoh_arguments(p)
     p.add_argument("--timeout", type=positive_float, default=5.0,
                    help="seconds to wait for the agent to confirm (default 5)")
