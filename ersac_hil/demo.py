@@ -28,7 +28,8 @@ written to ``OUT`` and its location printed.
 ``--secure``: ``ersac-hil certs init OUT/certs`` first; the router listens on
 ``tls/127.0.0.1:P`` with client certificates and the roles' access control, and every child
 connects with its role's config (``--zenoh-config OUT/certs/<role>.json5``).
-``OUT/stack.json`` says where the router is and which config each role uses, so a person or a
+``OUT/stack.json`` says where the router is, which config each role uses and the children's pids
+while the stack runs (``"stopped": true`` and no pids once it has stopped), so a person or a
 program can attach (e.g. ``ersac-hil state --zenoh-config OUT/certs/observer.json5``).
 ``--linger`` keeps the whole stack up after the report until Ctrl-C.
 ``--busy-poll S``: the simulators' and agents' CAN-over-Zenoh buses keep polling for the next
@@ -202,6 +203,9 @@ def run_demo(config: DemoConfig, stop: threading.Event, say: Callable[[str], Non
         return 130 if stop.is_set() else 1
     finally:
         stack.close()
+        if (out / "stack.json").is_file():  # the stack is gone: no pids left to attach to or signal
+            info = json.loads((out / "stack.json").read_text())
+            (out / "stack.json").write_text(json.dumps({**info, "stopped": True, "pids": {}}, indent=2) + "\n")
 
 
 def _demo(args: argparse.Namespace) -> int:

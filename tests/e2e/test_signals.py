@@ -9,6 +9,7 @@ init), and the exit status is 128 + the first signal (or death by it, before Pyt
 signals)."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -84,3 +85,5 @@ def test_a_signal_at_any_moment_of_start_up_or_shutdown_leaves_no_process(tmp_pa
         code = proc.wait(120)  # a hang fails here
     assert code in (128 + first, -first), code
     wait_until(lambda: not marked(tag), 60, what="every process of the tree gone")
+    if second is None and (out / "stack.json").is_file():  # a forced exit leaves it as it was
+        assert json.loads((out / "stack.json").read_text())["pids"] == {}
