@@ -293,7 +293,10 @@ def _client_options(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this package's subcommands to the ``ersac-hil`` parser."""
+    from ersac_hil.daemon.config import TASK_DEFAULTS
     from ersac_hil.zenoh_session import add_zenoh_arguments
+    from protocol.zenoh.keys import DEFAULT_PREFIX
+    paper = ", ".join(f"{task} {d.episodes}" for task, d in TASK_DEFAULTS.items())
     p = sub.add_parser("daemon", help="the learner daemon (ERSAC against the agent's episode/run)",
                        description="Learn with ERSAC by asking the robot-side agent to run episodes. "
                                    "Flags override the --config TOML file.")
@@ -315,10 +318,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulator prior of a new run: a landscape JSON, a reproduce directory or a store "
                         "of simulated episodes of the task; start from its optimum for kappa, drop it if "
                         "the robot's warm-up episodes disagree (docs/learner.md)")
-    p.add_argument("--prefix", help="key prefix (default ersac)")
+    p.add_argument("--prefix", help=f"key prefix (default {DEFAULT_PREFIX})")
     p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
     p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")
-    p.add_argument("--episodes", type=int, help="ok episodes in the run (default: the paper's, bracing 45, lifting 30)")
+    p.add_argument("--episodes", type=int, help=f"ok episodes in the run (default: the paper's, {paper})")
     p.add_argument("--seed", type=int, help="run seed (default: random, stored)")
     p.add_argument("--theta0", type=_floats, help="initial policy mean, comma-separated (default: the task's, docs/daemon.md)")
     p.add_argument("--sigma", type=_floats, help="exploration std per parameter, comma-separated (default: bracing 0.05, lifting 0.075)")
