@@ -7,7 +7,8 @@ functions):
   a package is always initialised before its modules);
 * the layers inside ``ersac_hil``: the numerical core (``learner``, ``critic``) is pure (no
   Zenoh, no SQLite, no CAN, none of the I/O shells); the agent and the daemon, the two sides of
-  the Zenoh contract, never import each other; ``stack`` (process supervision) is for the
+  the Zenoh contract, never import each other (their command lines may: ``ersac-hil state``
+  shows both); ``stack`` (process supervision) is for the
   commands that run a whole stack only (``demo``, ``reproduce``).
 
 A failure names every offending import, file by file.
@@ -32,8 +33,10 @@ LAYERS: list[tuple[str, tuple[str, ...], tuple[str, ...], str]] = [
     # (modules under, may not import, except from, why)
     ("ersac_hil.learner", _PURE, (), "the learner is a pure numerical core"),
     ("ersac_hil.critic", _PURE, (), "the critic is a pure numerical core"),
-    ("ersac_hil.agent", ("ersac_hil.daemon",), (), "agent and daemon meet only through the contract"),
-    ("ersac_hil.daemon", ("ersac_hil.agent",), (), "agent and daemon meet only through the contract"),
+    ("ersac_hil.agent", ("ersac_hil.daemon",), ("ersac_hil.agent.cli",),
+     "agent and daemon meet only through the contract"),
+    ("ersac_hil.daemon", ("ersac_hil.agent",), ("ersac_hil.daemon.cli",),
+     "agent and daemon meet only through the contract"),
     ("ersac_hil", ("ersac_hil.stack",), ("ersac_hil.stack", "ersac_hil.demo", "ersac_hil.reproduce"),
      "process supervision is for the commands that run a whole stack"),
 ]
