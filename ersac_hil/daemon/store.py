@@ -27,8 +27,9 @@ A weights change and the re-costing of every stored ok episode are one transacti
 
 A store of an older schema is migrated in place when opened for writing (schema 1 -> 2: the
 ``trace`` column; 2 -> 3: ``episodes.update_idx``, filled from the updates of the time, one
-episode each; 3 -> 4: ``episodes.mcap``, empty for the episodes of the time); read-only opens
-read it as it is.
+episode each; 3 -> 4: ``episodes.mcap``, empty for the episodes of the time); where the stored ``episodes``
+table is not today's definition (a CHECK of the attempt statuses of its time), it is rebuilt
+once with today's, every row kept. Read-only opens read it as it is.
 
 One connection shared by the daemon's threads, serialised by a lock. JSON columns hold
 floats as ``repr`` text, so values round-trip exactly.
@@ -152,6 +153,59 @@ CREATE INDEX episodes_run ON episodes(run_id, idx, attempt);
 CREATE INDEX changes_run ON changes(run_id, kind, seq);
 PRAGMA user_version = {SCHEMA_VERSION};
 """
+
+
+def _episodes_sql() -> str:
+    """The ``CREATE TABLE episodes`` statement of today's schema (what ``sqlite_master`` keeps)."""
+    start = _SCHEMA.index("CREATE TABLE episodes")
+    return _SCHEMA[start:_SCHEMA.index(";", start)]
+
+
+def _episodes_indexes() -> str:
+    return "".join(line + "\n" for line in _SCHEMA.splitlines()
+                   if line.startswith("CREATE") and " ON episodes(" in line)
+
+
+def _definition(create_table: str) -> str:
+    """A CREATE TABLE statement's column list, whitespace-normalised (a renamed table's stored
+    statement quotes its name)."""
+    return " ".join(create_table[create_table.index("("):].split())
+
+
+def _refresh_episodes_table(db: sqlite3.Connection) -> None:
+    """Rebuild ``episodes`` where its stored definition is not today's.
+
+    SQLite cannot change a CHECK constraint in place, and ``ALTER TABLE ... ADD COLUMN`` keeps the
+    old one: a store created before an attempt status existed (``stopped`` of the e-stop, say)
+    would refuse that status. So the table is rebuilt once with today's definition (every row
+    and ``seq`` kept, its indexes re-created), in one transaction, following SQLite's own
+    procedure for schema changes (foreign keys off while the table is swapped, checked before
+    the commit). A store whose table is already today's is left untouched.
+    """
+    stored = db.execute("SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'episodes'").fetchone()
+    wanted = _episodes_sql()
+    if stored is None or _definition(stored[0]) == _definition(wanted):
+        return
+    columns = [row[1] for row in db.execute("PRAGMA table_info(episodes)")]
+    listed = ", ".join(columns)
+    db.execute("PRAGMA foreign_keys = OFF")
+    try:
+        db.executescript(
+            "BEGIN; " + wanted.replace("CREATE TABLE episodes", "CREATE TABLE episodes_rebuilt", 1) + "; "
+            f"INSERT INTO episodes_rebuilt ({listed}) SELECT {listed} FROM episodes; "
+            "DROP TABLE episodes; ALTER TABLE episodes_rebuilt RENAME TO episodes; "
+            + _episodes_indexes())
+        broken = db.execute("PRAGMA foreign_key_check").fetchall()
+        if broken:
+            db.execute("ROLLBACK")
+            raise StoreError(f"rebuilding the episodes table would break {len(broken)} references")
+        db.execute("COMMIT")
+    except sqlite3.DatabaseError:
+        if db.in_transaction:
+            db.execute("ROLLBACK")
+        raise
+    finally:
+        db.execute("PRAGMA foreign_keys = ON")
 
 
 class StoreError(RuntimeError):
@@ -372,6 +426,8 @@ class Store:
                     self._db.executescript(f"BEGIN; {_MIGRATIONS[version]}; "
                                            f"PRAGMA user_version = {version + 1}; COMMIT;")
                     version += 1
+            if not readonly:
+                _refresh_episodes_table(self._db)
         except sqlite3.DatabaseError as exc:
             self._db.close()
             if not existed:

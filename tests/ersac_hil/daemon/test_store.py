@@ -325,3 +325,50 @@ def test_an_update_takes_only_ok_episodes_awaiting_it(store):
                                  episodes=("run1.00000.0", "run1.00002.0"))
     store.record_success("run1.00002.0", _result("run1.00002.0", terms), 1.0, update)
     assert [(a.status, a.update_idx) for a in store.attempts("run1")] == [("ok", 0), ("pending", None), ("ok", 0)]
+
+
+def test_a_store_whose_status_check_predates_a_status_is_rebuilt_and_keeps_everything(tmp_path):
+    """A store created before an attempt status existed (here: ``stopped``, the e-stop's) has a
+    CHECK that refuses it, which ``ALTER TABLE`` cannot change: a read-write open rebuilds the
+    table once with today's definition, every row kept; a read-only open leaves the file alone."""
+    from ersac_hil.daemon import store as store_module
+    path = tmp_path / "old-check.db"
+    terms = {"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 0.5}
+    old_schema = store_module._SCHEMA.replace("'stopped', ", "")
+    assert old_schema != store_module._SCHEMA
+    db = sqlite3.connect(path)
+    db.executescript(old_schema)
+    db.close()
+    with Store(path, readonly=True) as store:
+        assert store.attempts("r1") == []
+    assert "'stopped'" not in sqlite3.connect(path).execute(
+        "SELECT sql FROM sqlite_master WHERE name = 'episodes'").fetchone()[0]
+    with Store(path) as store:
+        store.create_run("r1", "ubot1", "bracing", 3, {"episodes": 5})
+        for i in range(2):
+            _ok_episode(store, "r1", i, terms)
+        store.begin_attempt("r1", "r1.00002.0", 2, 0, (0.5,), (0.01,), (0.51,), 9)
+        before = (store.attempts("r1"), store.updates("r1"))
+    db = sqlite3.connect(path)  # back to the old definition, rows and all
+    db.executescript("PRAGMA foreign_keys = OFF; BEGIN;"
+                     + store_module._episodes_sql().replace("CREATE TABLE episodes", "CREATE TABLE old", 1)
+                     .replace("'stopped', ", "") + "; INSERT INTO old SELECT * FROM episodes; DROP TABLE episodes;"
+                     " ALTER TABLE old RENAME TO episodes;" + store_module._episodes_indexes() + " COMMIT;")
+    db.close()
+    with pytest.raises(sqlite3.IntegrityError):  # what the old CHECK does to an e-stopped attempt
+        raw = sqlite3.connect(path)
+        raw.execute("UPDATE episodes SET status = 'stopped' WHERE episode_id = 'r1.00002.0'")
+    raw.close()
+    with Store(path) as store:
+        assert (store.attempts("r1"), store.updates("r1")) == before
+        store.record_failure("r1.00002.0", "stopped", "e-stop")
+        assert [a.status for a in store.attempts("r1")] == ["ok", "ok", "stopped"]
+        store.begin_attempt("r1", "r1.00002.1", 2, 1, (0.5,), (0.01,), (0.51,), 10)
+        assert store.attempts("r1")[-1].seq > store.attempts("r1")[-2].seq
+    stored = sqlite3.connect(path).execute("SELECT sql FROM sqlite_master WHERE name = 'episodes'").fetchone()[0]
+    assert store_module._definition(stored) == store_module._definition(store_module._episodes_sql())
+    page = "SELECT rootpage FROM sqlite_master WHERE name = 'episodes'"
+    rootpage = sqlite3.connect(path).execute(page).fetchone()[0]
+    with Store(path) as store:  # today's definition: left as it is (a rebuild moves the table)
+        assert [a.status for a in store.attempts("r1")] == ["ok", "ok", "stopped", "pending"]
+    assert sqlite3.connect(path).execute(page).fetchone()[0] == rootpage
