@@ -25,7 +25,9 @@ Learning loop, one update at a time, over a batch of k = ``batch`` learner episo
    Anything else (fault status, timeout, lost agent, refusal, bad reply): the attempt is
    committed with its status (never told to the learner) and the same request re-queued with
    a new episode id, after a backoff (doubling from ``backoff_s[0]`` up to ``backoff_s[1]``;
-   none when its agent vanished: another may take it at once). After ``max_attempts`` failed
+   none when its agent vanished: another may take it at once). An episode ended ``stopped`` by
+   an e-stop, or refused ``unavailable`` (e-stop engaged, robot not commissioned), is no failure:
+   the run is ``paused`` and asks again, uncounted. After ``max_attempts`` failed
    attempts of one episode, or at once on an ``unknown_task`` refusal, the run is marked
    ``failed``. An ``invalid_request`` refusal means the agent will not execute these
    parameters (e.g. a spline outside the joint limits): once every other episode of the batch
@@ -50,7 +52,7 @@ import zenoh
 from ersac_hil.zenoh_session import open_session, resolve_config
 from protocol.zenoh import EpisodeRequest, EpisodeResult, LearnerEpisode
 
-from .agents import AgentAbsent, Stopped
+from .agents import AgentAbsent, Outcome, Stopped
 from .config import DaemonConfig
 from .control import ControlPlane
 from .engine import Proposal
@@ -257,6 +259,8 @@ class Daemon:
                 raise done.error
             outcome, request = done.outcome, done.request
             if outcome.status == "ok":
+                if self.learning.status == "paused":  # the robot was held and runs again
+                    self.learning.status = "running"
                 m.terms, m.episode_id = dict(outcome.result.cost_terms), request.episode_id
                 self._ok(members, m, request, outcome.result, done.robot)
                 continue
@@ -265,6 +269,10 @@ class Daemon:
             if outcome.status == "interrupted":
                 raise Stopped
             m.attempt += 1
+            if outcome.status == "stopped" or outcome.code == "unavailable":
+                self._hold(m, outcome)
+                by_eid[episode_id(self.learning.run_id, m.idx, m.attempt)] = m
+                continue
             if outcome.code == "unknown_task":
                 raise RunFailed(f"agent refused episode {request.episode_id}: {outcome.code}: {outcome.detail}")
             if outcome.code == "invalid_request":
@@ -287,6 +295,18 @@ class Daemon:
             self._send(m, delay)
             by_eid[episode_id(self.learning.run_id, m.idx, m.attempt)] = m
         return refused
+
+    def _hold(self, m: _Member, outcome: Outcome) -> None:
+        """The robot is held by its operator (an e-stop ended the episode ``stopped``, or the agent
+        refuses ``unavailable``: e-stop engaged, not commissioned): no failure of the episode and
+        not counted against ``max_attempts``; the run is ``paused`` and re-sends the same request
+        (backoff up to ``backoff_s[1]``) until the robot runs again or the daemon is stopped."""
+        self.learning.status = "paused"
+        delay = m.backoff
+        m.backoff = min(2 * m.backoff, self.config.backoff_s[1])
+        self._print(f"episode {m.idx + 1:4d} attempt {m.attempt}: robot held ({outcome.status}: "
+                    f"{outcome.detail[:200]}) - paused, asking again in {delay:g} s (not counted as a failure)")
+        self._send(m, delay)
 
     def _ok(self, members: list[_Member], m: _Member, request: EpisodeRequest, result: EpisodeResult,
             robot: str) -> None:

@@ -72,14 +72,19 @@ class SyntheticAgent:
             reading: no critic can fit a neighbourhood that holds it).
         rogue: a forger: no liveliness tokens, every request answered at once with schema-valid
             zero costs.
+        stopped_first: the first this many requests end ``stopped`` (an e-stop mid-episode).
+        unavailable_next: the next this many are refused ``unavailable`` (the e-stop still
+            engaged), then episodes run as usual (the operator released it).
         announce: called with every request it starts to run.
     """
 
     def __init__(self, session: zenoh.Session, keys: KeySpace, delay_s: float = 0.0,
                  fault_every: int = 0, always_fault: bool = False,
                  refuse_above: float = math.inf, huge_cost_at: tuple[int, ...] = (),
-                 rogue: bool = False, announce=None) -> None:  # noqa: ANN001
+                 rogue: bool = False, announce=None, stopped_first: int = 0,
+                 unavailable_next: int = 0) -> None:  # noqa: ANN001
         self.keys = keys
+        self._held = ["stopped"] * stopped_first + ["unavailable"] * unavailable_next
         self.rogue = rogue
         self.announce = announce
         self.huge_cost_at = set(huge_cost_at)
@@ -111,6 +116,11 @@ class SyntheticAgent:
             query.reply_err(ErrorReply("invalid_request", f"theta[0] = {request.theta[0]!r} above the "
                                        f"safe limit {self.refuse_above!r}").to_json())
             return
+        if self._held and self._held[0] == "unavailable":
+            self._held.pop(0)
+            self.requests.append(request)
+            query.reply_err(ErrorReply("unavailable", "e-stop engaged (synthetic)").to_json())
+            return
         if not self._lock.acquire(blocking=False):
             query.reply_err(ErrorReply("busy", "an episode is running").to_json())
             return
@@ -121,7 +131,11 @@ class SyntheticAgent:
             if self.delay_s and self._closed.wait(self.delay_s):
                 return  # closed while the episode ran
             attempt = int(request.episode_id.rsplit(".", 1)[-1]) if "." in request.episode_id else 0
-            if self.always_fault or (self.fault_every and request.seed % self.fault_every == 0
+            if self._held and self._held[0] == "stopped":
+                self._held.pop(0)
+                result = EpisodeResult(request.episode_id, request.task, "stopped", {"body_acc_sq": 1.0}, None,
+                                       duration_s=0.1, wall_s=self.delay_s, detail="e-stop (synthetic)")
+            elif self.always_fault or (self.fault_every and request.seed % self.fault_every == 0
                                      and attempt == 0):
                 result = EpisodeResult(request.episode_id, request.task, "fault_pdo_timeout",
                                        {"body_acc_sq": 1.0}, None, duration_s=0.4, wall_s=self.delay_s,

@@ -276,7 +276,12 @@ def test_an_estopped_episode_is_never_stored_as_ok_by_the_daemon(tmp_path):
                     session.put(keys.agent_estop, EstopCommand(True, "daemon test").to_json())
                     wait_until(lambda: agent.safety.engaged is not None, what="the e-stop")
                     watch.release.set()
-                    assert daemon.finished.wait(120), "the run did not end"  # stopped, then refused: failed
+                    # stopped, then refused while the e-stop stays engaged: the run waits, paused,
+                    # past max_attempts, and is not failed
+                    with Store(db, readonly=True) as store:
+                        wait_until(lambda: len(store.attempts(daemon.learning.run_id)) > 2, 120,
+                                   what="the daemon asking the held robot again")
+                    assert daemon.learning.status == "paused" and not daemon.finished.is_set()
                 finally:
                     daemon.stop()
         with Store(db, readonly=True) as store:
@@ -284,7 +289,7 @@ def test_an_estopped_episode_is_never_stored_as_ok_by_the_daemon(tmp_path):
             attempts = store.attempts(run.run_id)
             assert store.ok_episodes(run.run_id) == [] and store.update_count(run.run_id) == 0
             assert attempts[0].status == "stopped" and "daemon test" in attempts[0].detail
-            assert all(a.status != "ok" for a in attempts)
+            assert all(a.status != "ok" for a in attempts) and run.status == "running"
     finally:
         watch.close()
         robot.close()

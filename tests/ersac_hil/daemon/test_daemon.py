@@ -148,6 +148,26 @@ def test_failed_episodes_are_retried_then_the_run_fails(router, agent_factory, d
     assert len(agent.requests) == 3
 
 
+def test_an_e_stopped_robot_pauses_the_run_without_failing_it(router, agent_factory, daemon_factory):
+    """An episode ended ``stopped`` by an e-stop and refusals ``unavailable`` while it stays engaged
+    are no failures: more of them than ``max_attempts`` leave the run paused, not failed; once
+    the robot runs again the same request is served and the run finishes; nothing stopped is
+    ever told to the learner."""
+    out = io.StringIO()
+    agent = agent_factory("held", stopped_first=1, unavailable_next=4)
+    daemon = daemon_factory("held", out=out, episodes=3, max_attempts=2)
+    wait_until(lambda: len(agent.requests) >= 3, 30, what="the held robot asked again")
+    assert daemon.learning.status == "paused" and not daemon.finished.is_set()
+    assert daemon.finished.wait(60) and daemon.exit_code == 0, out.getvalue()
+    with Store(daemon.config.db, readonly=True) as store:
+        attempts = store.attempts(daemon.learning.run_id)
+        run = store.run(daemon.learning.run_id)
+    assert [a.status for a in attempts] == ["stopped"] + ["refused"] * 4 + ["ok"] * 3
+    assert len({(a.theta, a.seed) for a in attempts if a.idx == 0}) == 1  # the same request each time
+    assert run.status == "finished" and daemon.learning.engine.n_observations == 3
+    assert out.getvalue().count("robot held") == 5 and daemon.learning.status == "idle"
+
+
 def test_refused_parameters_are_redrawn(router, agent_factory, daemon_factory):
     agent_factory("lim", refuse_above=0.9)
     daemon = daemon_factory("lim", episodes=8, theta0=(0.88,), sigma=(0.05,))
