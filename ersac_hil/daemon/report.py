@@ -178,6 +178,12 @@ def write_report(db: str | Path, run_id: str, out: str | Path, series: str | Pat
         final_theta = tuple(engine.theta) if engine else tuple(run.settings["theta0"])
         critic_at_final = None
         by_kappa = None
+        if engine is not None:
+            try:
+                (j, r), = engine.critic([final_theta])
+                critic_at_final = {"J": float(j), "r": float(r), "F": float(j + engine.kappa * r)}
+            except NotEnoughData:  # too few episodes for a critic: no critic, risk or selection
+                engine = None
         if engine is not None and spec.dim == 1:
             damaged = np.array([_damaged(e) for e in episodes], dtype=bool)
             curve = critic_curve(run, episodes, engine)
@@ -191,9 +197,6 @@ def write_report(db: str | Path, run_id: str, out: str | Path, series: str | Pat
                 plot_risk(out / "risk.png", run, episodes, damaged, curve,
                           [s for s in by_kappa if s["kappa"] in KAPPAS], by_kappa, engine.kappa)
                 files.append("risk.png")
-        if engine is not None:
-            (j, r), = engine.critic([final_theta])
-            critic_at_final = {"J": float(j), "r": float(r), "F": float(j + engine.kappa * r)}
         shown = _episode_series(Path(series), episodes) if series is not None else []
         if shown:
             plot_episodes(out / "episode.png", shown)

@@ -61,3 +61,19 @@ def test_report_files_and_summary(router, agent_factory, daemon_factory, tmp_pat
     assert json.loads((tmp_path / "l" / "summary.json").read_text())["run_id"] == daemon.learning.run_id
     assert main(["report", "no-such-run", "--db", str(daemon.config.db), "--out", str(tmp_path / "x")]) == 2
     assert main(["report", "x", "--db", str(tmp_path / "missing.db"), "--out", str(tmp_path / "y")]) == 2
+
+
+@pytest.mark.parametrize("episodes", [1, 2])
+def test_a_run_too_short_for_a_critic_is_reported_without_critic_figures(router, agent_factory,
+                                                                          daemon_factory, tmp_path, episodes):
+    """Fewer ok episodes than a critic can be fitted on (``demo --episodes 2``): the learning curve
+    and the summary, no critic, risk or selection, and no error."""
+    agent_factory(f"short{episodes}")
+    daemon = daemon_factory(f"short{episodes}", episodes=episodes, kappa=2.0)
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    daemon.stop()
+    out = tmp_path / "report"
+    summary = write_report(daemon.config.db, daemon.learning.run_id, out)
+    assert summary["files"] == ["learning_curve.png", "summary.json"] and summary["episodes"] == episodes
+    assert summary["critic_at_final_theta"] is None and summary["selection_by_kappa"] is None
+    assert (out / "learning_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
