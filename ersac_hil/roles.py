@@ -156,9 +156,19 @@ ROS2_PUBLISHERS: tuple[str, ...] = ("agent",)
 ROS2_READERS: tuple[str, ...] = ("operator", "observer")
 
 
-def ros2_rules(name: str, role: str, domain: int = 0) -> list[dict[str, Any]]:
-    """The access-control rules of identity ``name`` (of ``role``) on ROS domain ``domain``."""
+def ros2_rules(name: str, role: str, domain: int = 0, robot: str | None = None) -> list[dict[str, Any]]:
+    """The access-control rules of identity ``name`` (of ``role``) on ROS domain ``domain``.
+
+    A robot's own agent identity (``robot`` given) publishes only under its robot's default
+    namespace ``/<robot>`` (``agent --ros2`` without ``--ros-namespace``): data keys
+    ``<domain>/<robot>/**`` and the tokens whose namespace field is ``%<robot>``, so one robot's
+    agent cannot speak for another's topics."""
     data, tokens = [f"{domain}/**"], [f"@ros2_lv/{domain}/**"]
+    if role in ROS2_PUBLISHERS and robot is not None:
+        from ersac_hil.ros2.names import mangle, robot_namespace  # pure: re and struct only
+        namespace = robot_namespace(robot)
+        # @ros2_lv/<domain>/<zid>/<nid>/<eid>/<kind>/<enclave>/<namespace>/...
+        data, tokens = [f"{domain}{namespace}/**"], [f"@ros2_lv/{domain}/*/*/*/*/*/{mangle(namespace)}/**"]
     if role in ROS2_PUBLISHERS:
         grants = [("ingress", ("put",), data), ("ingress", ("liveliness_token",), tokens)]
     elif role in ROS2_READERS:
@@ -239,7 +249,7 @@ def access_control(prefix: str = DEFAULT_PREFIX, robot: str = "*", robots: Seque
                           "messages": list(_CAN_MESSAGES),
                           "key_exprs": list(CAN_KEYS) if own is None else [f"can/{own}"]})
             ids.append(f"{name}-can")
-        ros2 = ros2_rules(name, role, ros_domain)
+        ros2 = ros2_rules(name, role, ros_domain, own)
         rules += ros2
         ids += [r["id"] for r in ros2]
         if ids:

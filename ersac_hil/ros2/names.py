@@ -52,6 +52,12 @@ def demangle(chunk: str) -> str:
     return "" if chunk == "%" else chunk.replace("%", "/")
 
 
+def robot_namespace(robot: str) -> str:
+    """A robot's default ROS namespace, ``/<robot>`` (characters a ROS name lacks as ``_``)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", robot)
+    return f"/{'_' if name[:1].isdigit() else ''}{name}"
+
+
 def check_namespace(namespace: str) -> str:
     """A ROS namespace (``/`` or ``/a/b``); ``RosNameError`` naming what is wrong."""
     if namespace == "/":

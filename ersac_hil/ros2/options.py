@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import re
 from dataclasses import dataclass
 
 from ersac_hil.cli_args import UsageError
@@ -35,10 +34,7 @@ class Ros2Options:
 
     def namespace_for(self, robot: str) -> str:
         """The namespace, by default ``/<robot>`` (characters a ROS name lacks as ``_``)."""
-        if self.namespace is not None:
-            return self.namespace
-        name = re.sub(r"[^A-Za-z0-9_]", "_", robot)
-        return f"/{'_' if name[:1].isdigit() else ''}{name}"
+        return self.namespace if self.namespace is not None else names.robot_namespace(robot)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

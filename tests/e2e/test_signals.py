@@ -51,6 +51,14 @@ def marked(tag: str) -> list[int]:
     return found
 
 
+def _default_signals() -> None:  # in the child, before exec
+    """SIGINT/SIGTERM as a shell's foreground command has them: a test run from a background
+    job (``nohup ... &``) inherits SIGINT ignored, and Python keeps an ignored SIGINT ignored
+    until the demo installs its own handler."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _children_started(tag: str, demo: int) -> int:
     return len([p for p in marked(tag) if p != demo])
 
@@ -70,7 +78,7 @@ def test_a_signal_at_any_moment_of_start_up_or_shutdown_leaves_no_process(tmp_pa
     out = tmp_path / uuid.uuid4().hex[:8]
     proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "demo", "--episodes", "5", "--out", str(out)],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_signals)
     with group_killed_on_exit(proc):
         if children:
             wait_until(lambda: _children_started(tag, proc.pid) >= children or proc.poll() is not None,

@@ -86,7 +86,9 @@ def test_the_set_has_one_agent_and_one_simulator_per_robot_and_no_fleet_wide_one
         for role in ROBOT_ROLES:
             (policy,) = [p for p in acl["policies"] if p["subjects"] == [f"{role}-{robot}"]]
             keys = {k for i in policy["rules"] for k in rules[i]["key_exprs"]}
-            assert keys and all(k.startswith(f"ersac/{robot}/") or k == f"can/{robot}" for k in keys)
+            own_ros = {f"0/{robot}/**", f"@ros2_lv/0/*/*/*/*/*/%{robot}/**"}  # its ROS namespace only
+            assert keys and all(k.startswith(f"ersac/{robot}/") or k == f"can/{robot}" or k in own_ros
+                                for k in keys), keys
 
 
 @given(st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,20}", fullmatch=True), st.sampled_from(ROBOT_ROLES))

@@ -20,6 +20,7 @@ from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from helpers.can_nodes import set_state
 from helpers.cia402 import CSP, CST, DESCRIPTION, DRIVES, Bench, scaling
 from helpers.timing import PATIENCE_S
+from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can import cia402
 from protocol.can.cia402 import Index, State, Statusword
 from protocol.can.devices import object_dictionary
@@ -156,7 +157,9 @@ def test_heartbeat_loss_faults_with_emcy_and_fault_reset(bench):
     node.op_mode = CSP
     node.state = "OPERATION ENABLED"
     bench.heartbeat.stop()
-    entry = node.emcy.wait(EmcyCode.HEARTBEAT_LOST, timeout=PATIENCE_S)
+    # no SYNC comes: a lock-step drive counts the silence as a loss only after the lock-step
+    # patience (protocol.can.lockstep); the loaded-machine margin comes on top
+    entry = node.emcy.wait(EmcyCode.HEARTBEAT_LOST, timeout=LOCKSTEP_PATIENCE_S + PATIENCE_S)
     assert entry is not None and entry.code == EmcyCode.HEARTBEAT_LOST
     node.check_statusword()
     assert node.state == "FAULT"
