@@ -170,7 +170,11 @@ def ros2_rules(name: str, role: str, domain: int = 0, robot: str | None = None) 
         # @ros2_lv/<domain>/<zid>/<nid>/<eid>/<kind>/<enclave>/<namespace>/...
         data, tokens = [f"{domain}{namespace}/**"], [f"@ros2_lv/{domain}/*/*/*/*/*/{mangle(namespace)}/**"]
     if role in ROS2_PUBLISHERS:
-        grants = [("ingress", ("put",), data), ("ingress", ("liveliness_token",), tokens)]
+        # the router tells the agent of the readers' subscribers (any on the domain: a reader's
+        # ``<domain>/**`` is no subset of ``<domain>/<robot>/**``); without it the agent's
+        # publishers (write-side filtering) drop every sample after the first
+        grants = [("ingress", ("put",), data), ("ingress", ("liveliness_token",), tokens),
+                  ("egress", ("declare_subscriber",), [f"{domain}/**"])]
     elif role in ROS2_READERS:
         grants = [("ingress", ("declare_subscriber",), data), ("ingress", _LIVELINESS_READ, tokens),
                   ("egress", ("put",), data), ("egress", ("liveliness_token", "reply"), tokens)]

@@ -37,7 +37,8 @@ def test_the_rules_give_ros2_to_the_agent_and_reading_to_operators_and_observers
     rules = {r["id"]: r for r in acl["rules"]}
     agent = [rules[i] for i in by_subject["agent"]]
     assert {(r["flows"][0], m, k) for r in agent for m in r["messages"] for k in r["key_exprs"]} == {
-        ("ingress", "put", "4/**"), ("ingress", "liveliness_token", "@ros2_lv/4/**")}
+        ("ingress", "put", "4/**"), ("ingress", "liveliness_token", "@ros2_lv/4/**"),
+        ("egress", "declare_subscriber", "4/**")}
 
 
 def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment):
@@ -68,8 +69,48 @@ def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment)
             while len(got["operator"]) == heard and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert "0/ubot1/joint_states/fake" not in got["operator"]
+            # every sample arrives, not only the first: the agent learns of the readers'
+            # subscribers (its publishers filter on them)
+            before = len(got["observer"])
+            for _ in range(20):
+                node.put("episode", b"\x00\x01\x00\x00")
+            deadline = time.monotonic() + TIMEOUT
+            while len(got["observer"]) < before + 20 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert len(got["observer"]) == before + 20
         finally:
             node.close()
             for s in subs:
                 s.undeclare()
     assert got["daemon"] == []
+
+
+@pytest.fixture(scope="module")
+def fleet_deployment(tmp_path_factory):
+    certs = init_certs(tmp_path_factory.mktemp("ros2-acl-fleet"), robots=("ubot1", "ubot2"),
+                       router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
+    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
+                                              mode="router")):
+        yield certs
+
+
+def test_a_robots_agent_publishes_under_its_own_namespace_only(fleet_deployment):
+    got: list[str] = []
+    with (_session(fleet_deployment, "agent-ubot1") as agent, _session(fleet_deployment, "observer") as observer):
+        sub = observer.declare_subscriber("0/**", lambda sample: got.append(str(sample.key_expr)))
+        own = Ros2Node.declare(agent, Ros2Options(), "ubot1")
+        other = Ros2Node.declare(agent, Ros2Options(), "ubot2")  # speaking for another robot
+        try:
+            deadline = time.monotonic() + TIMEOUT
+            while sum(k.startswith("0/ubot1/") for k in got) < 20 and time.monotonic() < deadline:
+                own.put("episode", b"\x00\x01\x00\x00")
+                other.put("episode", b"\x00\x01\x00\x00")
+                time.sleep(0.02)
+            assert sum(k.startswith("0/ubot1/") for k in got) >= 20
+            assert not [k for k in got if not k.startswith("0/ubot1/")]
+            tokens = [names.parse_token(str(r.ok.key_expr)) for r in observer.liveliness().get("@ros2_lv/0/**", timeout=2)]
+            assert tokens and {t.topic for t in tokens if t.kind == "MP"} == {f"/ubot1/{t}" for t in messages.TOPICS}
+        finally:
+            own.close()
+            other.close()
+            sub.undeclare()
