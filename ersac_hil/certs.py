@@ -37,6 +37,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from ersac_hil.cli_args import add_prefix_argument, output_dir
 from ersac_hil.roles import ROLES, access_control, identities
+from ersac_hil.ros2.names import RosNameError, check_domain
 from protocol.zenoh.keys import DEFAULT_PREFIX
 
 __all__ = ["CertError", "CertSet", "init_certs", "role_of_config", "common_name", "router_config",
@@ -136,17 +137,17 @@ def _tls(files: Path, **names: str) -> dict[str, Any]:
 
 
 def router_config(files: Path, listen: Sequence[str], prefix: str = DEFAULT_PREFIX,
-                  robots: Sequence[str] = ()) -> dict[str, Any]:
+                  robots: Sequence[str] = (), ros_domain: int = 0) -> dict[str, Any]:
     """The router's Zenoh config: TLS listeners with client certificates required, the
-    roles' access control (per-robot identities for ``robots``). ``files`` is where the
-    key/cert files are (on the router)."""
+    roles' access control (per-robot identities for ``robots``; ROS 2 on ``ros_domain``).
+    ``files`` is where the key/cert files are (on the router)."""
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "connect": {"endpoints": []},
         "scouting": _NO_SCOUTING,
         "transport": _tls(files, listen_private_key="router.key", listen_certificate="router.crt"),
-        "access_control": access_control(prefix, robots=robots),
+        "access_control": access_control(prefix, robots=robots, ros_domain=ros_domain),
     }
 
 
@@ -163,7 +164,8 @@ def client_config(role: str, files: Path, connect: Sequence[str]) -> dict[str, A
 
 def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER,),
                hosts: Sequence[str] = (), prefix: str = DEFAULT_PREFIX, install_dir: str | Path | None = None,
-               days: int = DEFAULT_DAYS, force: bool = False, robots: Sequence[str] = ()) -> CertSet:
+               days: int = DEFAULT_DAYS, force: bool = False, robots: Sequence[str] = (),
+               ros_domain: int = 0) -> CertSet:
     """Create the CA, a key and certificate per role and a Zenoh json5 config per role.
 
     Args:
@@ -179,6 +181,8 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
         force: overwrite an existing set.
         robots: issue ``agent-<robot>`` and ``simulator-<robot>`` per robot instead of the
             fleet-wide ``agent`` and ``simulator`` (``configs`` keyed by those names).
+        ros_domain: the ROS domain (0..232) of the agents' ``--ros2`` that the access control
+            lets through (``ersac_hil.roles.ros2_rules``).
 
     Raises:
         CertError: an existing set without ``force``, a bad endpoint or argument.
@@ -201,6 +205,10 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
         router_hosts.append(host)
     if not 1 <= days <= 36_500:
         raise CertError(f"days must be in 1..36500, got {days}")
+    try:
+        check_domain(ros_domain)
+    except RosNameError as exc:
+        raise CertError(f"--ros-domain: {exc}") from None
     for robot in robots:
         try:
             KeySpace(robot, prefix)
@@ -225,7 +233,7 @@ def init_certs(directory: str | Path, *, router: Sequence[str] = (DEFAULT_ROUTER
         _write(out / f"{name}.key", _key_pem(key), private=True)
         _write(out / f"{name}.crt", cert.public_bytes(serialization.Encoding.PEM))
         if role == "router":
-            config = router_config(files, router, prefix, robots)
+            config = router_config(files, router, prefix, robots, ros_domain)
             comment = ("Zenoh router of ersac-hil: TLS with client certificates, access control by role.\n"
                        "ersac-hil router --zenoh-config router.json5")
         else:
@@ -285,7 +293,7 @@ def _init(args: argparse.Namespace) -> int:
     try:
         made = init_certs(args.dir, router=args.router or (DEFAULT_ROUTER,), hosts=args.host or (),
                           prefix=args.prefix, install_dir=args.install_dir, days=args.days,
-                          force=args.force, robots=tuple(args.robot or ()))
+                          force=args.force, robots=tuple(args.robot or ()), ros_domain=args.ros_domain)
     except (CertError, OSError) as exc:
         print(f"ersac-hil certs: {exc}", file=sys.stderr, flush=True)
         return 2
@@ -313,5 +321,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--robot", action="append", metavar="NAME",
                    help="issue agent-NAME and simulator-NAME, allowed only robot NAME's keys and CAN channel "
                         "can/NAME, instead of the fleet-wide agent and simulator; repeatable")
+    q.add_argument("--ros-domain", dest="ros_domain", type=int, default=0, metavar="N",
+                   help="ROS domain (0..232) of the agents' --ros2 that the access control lets through (default 0)")
     q.set_defaults(func=_init)
 

@@ -27,6 +27,7 @@ from ersac_hil.ros2 import messages as m
 from ersac_hil.ros2.bridge import Ros2Node
 from ersac_hil.ros2.options import Ros2Options
 from ersac_hil.ros2.recorder import FrameTap, McapEpisodes
+from protocol.robot import RobotDescription
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 
 log = logging.getLogger(__name__)
@@ -64,19 +65,21 @@ class Feed:
         emcy: ``since -> EMCY events from there`` (the agent bus's log), or None.
         queue_size: samples the thread may lag behind.
         tap: a CAN trace tap whose frames go into the MCAP files, or None.
+        description: the robot description (joint efforts from its torque constants and
+            gears; None: the default description).
     """
 
     def __init__(self, robot: str, node: Ros2Node | None = None, decimation: int = 1,
                  recorder: McapEpisodes | None = None,
                  emcy: Callable[[int], list[EmcyEvent]] | None = None, queue_size: int = 16384,
-                 tap: CanRecorder | None = None) -> None:
+                 tap: CanRecorder | None = None, description: RobotDescription | None = None) -> None:
         self.robot, self.node, self.decimation, self.recorder = robot, node, decimation, recorder
         self.tap = tap
         self._emcy = emcy
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self._thread: threading.Thread | None = None
         self._episode: _Episode | None = None
-        self._per_amp = m.torque_per_amp()
+        self._per_amp = m.torque_per_amp(description)
         self.dropped = 0
         self._dropped0 = 0
         self.published = 0
@@ -92,7 +95,7 @@ class Feed:
             recorder = McapEpisodes(config.record, options.namespace_for(config.robot), config.robot)
             tap = CanRecorder(config.bus, config.record).start()
         return cls(config.robot, node, options.decimation, recorder, bus.emcy_events,
-                   options.queue_size, tap).start()
+                   options.queue_size, tap, config.description).start()
 
     def start(self) -> "Feed":
         self._thread = threading.Thread(target=self._run, name="ros2-feed", daemon=True)

@@ -7,9 +7,9 @@ Topics, relative to the node's namespace (``/ubot1`` by default):
 topic              type                               what
 =================  =================================  =============================================
 ``joint_states``   ``sensor_msgs/msg/JointState``     every joint (``JOINTS`` order): position [rad],
-                                                      velocity [rad/s], effort [N m] (wheels: motor
-                                                      current x torque constant x gear; other joints
-                                                      NaN: their torque constants are not known)
+                                                      velocity [rad/s], effort [N m] (motor current
+                                                      x torque constant x gear of the robot
+                                                      description's axis; NaN without one)
 ``imu``            ``sensor_msgs/msg/Imu``            body pitch as orientation (rotation about +y,
                                                       x forward, z up), pitch rate as angular
                                                       velocity y [rad/s], acceleration x/z [m/s^2];
@@ -31,9 +31,9 @@ import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ersac_hil.agent.bus import EmcyEvent
-from ersac_hil.agent.robot import UBOT, RobotParameters
 from ersac_hil.agent.telemetry import JOINTS, STATUS_DEVICES, Telemetry
 from protocol.can.objects import EmcyCode, Status
+from protocol.robot import RobotDescription, default_description
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -108,11 +108,13 @@ def header(stamp_ns: int, frame_id: str = "") -> Any:
     return _t("std_msgs/msg/Header")(_t("builtin_interfaces/msg/Time")(sec, nsec), frame_id)
 
 
-def torque_per_amp(robot: RobotParameters = UBOT) -> np.ndarray:
-    """Joint torque per motor ampere, ``JOINTS`` order (NaN where unknown)."""
-    out = np.full(len(JOINTS), math.nan)
-    out[:2] = robot.wheel_kt * robot.wheel_gear
-    return out
+def torque_per_amp(description: RobotDescription | None = None) -> np.ndarray:
+    """Joint torque per motor ampere, ``JOINTS`` order: torque constant x gear of each axis of
+    the robot description (default: the default description); NaN for a joint it has no axis of."""
+    d = description if description is not None else default_description()
+    axes = {a.name: a for a in d.axes}
+    return np.array([axes[j].torque_constant * axes[j].gear if j in axes else math.nan for j in JOINTS],
+                    dtype=np.float64)
 
 
 def joint_state(tel: Telemetry, stamp_ns: int, per_amp: np.ndarray) -> Any:

@@ -23,6 +23,7 @@ from ersac_hil.zenoh_session import EmbeddedRouter
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.waiting import wait_until
 from protocol.can.busconfig import BusConfig
+from protocol.robot import default_description
 from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
 
 pytestmark = pytest.mark.timeout(240)
@@ -101,8 +102,11 @@ def test_the_joint_states_are_the_agents_telemetry(run):
     states = [JAZZY.deserialize_cdr(p, TOPICS["joint_states"]) for k, p, _ in run["samples"]
               if k.split("/")[3] == "joint_states"]
     assert len(states) == len(run["telemetry"])
+    axes = [default_description().axis(j) for j in JOINTS]
     for msg, tel in zip(states, run["telemetry"]):
         assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
+        # effort of every axis: current x the description's torque constant x gear
+        assert list(msg.effort) == [i * (a.torque_constant * a.gear) for i, a in zip(tel.current, axes)]
 
 
 def test_attachments_carry_increasing_sequence_numbers_and_stamps(run):

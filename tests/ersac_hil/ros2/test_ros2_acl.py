@@ -114,3 +114,48 @@ def test_a_robots_agent_publishes_under_its_own_namespace_only(fleet_deployment)
             own.close()
             other.close()
             sub.undeclare()
+
+
+@pytest.fixture(scope="module")
+def domain_deployment(tmp_path_factory):
+    certs = init_certs(tmp_path_factory.mktemp("ros2-acl-domain"), ros_domain=42,
+                       router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
+    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
+                                              mode="router")):
+        yield certs
+
+
+def test_certs_for_another_ros_domain_let_that_domain_through_and_not_domain_0(domain_deployment):
+    """``certs init --ros-domain 42``: an agent on domain 42 reaches an observer (every sample,
+    and its tokens); the same agent on domain 0 is dropped at the router."""
+    got: list[str] = []
+    with (_session(domain_deployment, "agent") as agent, _session(domain_deployment, "observer") as observer):
+        subs = [observer.declare_subscriber(f"{d}/**", lambda sample: got.append(str(sample.key_expr)))
+                for d in (0, 42)]
+        on42 = Ros2Node.declare(agent, Ros2Options(domain=42), "ubot1")
+        on0 = Ros2Node.declare(agent, Ros2Options(domain=0), "ubot1")
+        try:
+            deadline = time.monotonic() + TIMEOUT
+            while sum(k.startswith("42/") for k in got) < 20 and time.monotonic() < deadline:
+                on0.put("episode", b"\x00\x01\x00\x00")
+                on42.put("episode", b"\x00\x01\x00\x00")
+                time.sleep(0.02)
+            assert sum(k.startswith("42/ubot1/episode/") for k in got) >= 20
+            assert [k for k in got if not k.startswith("42/")] == []
+            tokens = [names.parse_token(str(r.ok.key_expr)) for r in observer.liveliness().get("@ros2_lv/42/**", timeout=2)]
+            assert {t.kind for t in tokens} == {"NN", "MP"} and {t.domain for t in tokens} == {42}
+            assert list(observer.liveliness().get("@ros2_lv/0/**", timeout=2)) == []
+        finally:
+            on0.close()
+            on42.close()
+            for s in subs:
+                s.undeclare()
+
+
+@pytest.mark.parametrize("value", ["233", "-1"])
+def test_certs_init_refuses_a_ros_domain_out_of_range_and_writes_nothing(tmp_path, capsys, value):
+    from ersac_hil.cli import main
+    assert main(["certs", "init", str(tmp_path / "set"), "--ros-domain", value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--ros-domain" in err[0] and "0..232" in err[0]
+    assert not (tmp_path / "set").exists()
