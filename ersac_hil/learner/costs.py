@@ -15,6 +15,8 @@ import numbers
 from collections.abc import Iterator, Mapping
 import numpy as np
 
+from protocol.zenoh.tasks import weighted_total
+
 from .errors import InvalidCostError, InvalidInputError, MissingTermError, UnknownTermError
 
 DEFAULT_TERM = "cost"
@@ -103,11 +105,10 @@ class CostWeights(Mapping[str, float]):
         return np.array([finite_real(terms[k], f"cost term {k!r}", InvalidCostError) for k in self.names])
 
     def combine_rows(self, T: np.ndarray) -> np.ndarray:
-        """sum_k w_k T[:, k], accumulated in name order.  T (N, K) -> (N,)."""
-        out = np.zeros(T.shape[0])
-        for k, (_, w) in enumerate(self._items):
-            out = out + w * T[:, k]
-        return out
+        """sum_k w_k T[:, k], accumulated in name order (the contract's `weighted_total`, so
+        a cost is bit-identical to the agent's `total_cost`).  T (N, K) -> (N,)."""
+        columns = {name: T[:, k] for k, (name, _) in enumerate(self._items)}
+        return np.asarray(weighted_total(columns, dict(self._items)), dtype=float)
 
     def combine(self, terms: Mapping[str, float] | float) -> float:
         """The scalar cost of one observation's terms."""

@@ -22,8 +22,9 @@ Costs follow Kuindersma, Grupen & Barto (2012):
   Each diagonal entry of Q is the weight of one squared-state integral term.
 
 The agent reports each integral (unweighted) as a named term; the total cost is
-``sum(weights[name] * terms[name])`` (:meth:`TaskSpec.total_cost`), so past episodes can be
-re-weighted exactly when the risk context changes.
+``sum(weights[name] * terms[name])`` (:func:`weighted_total`, the one place it is summed: the
+agent's reported total, :meth:`TaskSpec.total_cost` and the learner's costs), so past episodes
+can be re-weighted exactly when the risk context changes.
 """
 
 from __future__ import annotations
@@ -36,7 +37,23 @@ from typing import Any, Literal
 from .errors import InvalidField
 from .fields import Finite, Name, NonNegative, Positive, Record, convert
 
-__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task", "LIFTING_GOAL_HEIGHT_M", "LIFTING_GOAL_TOLERANCE_M"]
+__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task", "weighted_total", "LIFTING_GOAL_HEIGHT_M",
+           "LIFTING_GOAL_TOLERANCE_M"]
+
+
+def weighted_total(terms: Mapping[str, Any], weights: Mapping[str, float]) -> Any:
+    """``sum(weights[k] * terms[k])`` over the names of ``weights``, in one fixed order.
+
+    The products are accumulated one by one, from ``0.0``, in the sorted order of the names,
+    so a total is the same to the last bit wherever it is computed: from one episode's terms
+    (floats) or from a column per term holding many episodes' terms (numpy arrays, element by
+    element; the result is then an array). No validation: :meth:`TaskSpec.total_cost` and
+    the learner's ``CostWeights`` check names and values before they call it.
+    """
+    total: Any = 0.0
+    for name in sorted(weights):
+        total = total + weights[name] * terms[name]
+    return total
 
 
 class TaskSpec(Record, frozen=True):
@@ -116,7 +133,7 @@ class TaskSpec(Record, frozen=True):
     def total_cost(
         self, terms: Mapping[str, float], weights: Mapping[str, float] | None = None
     ) -> float:
-        """``sum(weights[k] * terms[k])`` over the task's terms.
+        """``sum(weights[k] * terms[k])`` over the task's terms (:func:`weighted_total`).
 
         Args:
             terms: one value per term name (extra names are an error).
@@ -130,7 +147,7 @@ class TaskSpec(Record, frozen=True):
             partial = convert(weights, dict[Name, NonNegative], "weights")
             self.check_names(partial, "weights", complete=False)
             w.update(partial)
-        total = math.fsum(w[k] * checked[k] for k in self.term_names)
+        total = weighted_total(checked, w)
         if not math.isfinite(total):
             raise InvalidField("cost_terms", "weighted total is not finite")
         return total

@@ -58,6 +58,7 @@ from protocol.zenoh import (
 from protocol.zenoh import codec
 from protocol.zenoh.codec import ID_PATTERN, NAME_PATTERN
 from protocol.zenoh.keys import CHUNK_PATTERN
+from protocol.zenoh.tasks import weighted_total
 
 # --------------------------------------------------------------------------- strategies
 
@@ -687,3 +688,23 @@ def test_total_cost_is_linear_in_the_terms(task, data):
     w = data.draw(weights(task))
     expected = math.fsum(w[n] * terms[n] for n in spec.term_names)
     assert spec.total_cost(terms, w) == pytest.approx(expected, rel=1e-12, abs=1e-9)
+
+
+@settings(deadline=None)
+@given(task_names, st.data())
+def test_weighted_total_sums_in_one_fixed_order(task, data):
+    """The total is the products added one by one in the sorted order of the names, whatever
+    order the mappings come in: the same bits for one episode's terms and for numpy columns of
+    many episodes' terms (how the learner re-costs its stored episodes)."""
+    spec = TASKS[task]
+    rows = data.draw(st.lists(st.fixed_dictionaries({n: moderate for n in spec.term_names}),
+                              min_size=1, max_size=8))
+    w = data.draw(weights(task))
+    for terms in rows:
+        expected = 0.0
+        for name in sorted(spec.term_names):
+            expected += w[name] * terms[name]
+        assert spec.total_cost(terms, w) == expected
+        assert spec.total_cost(dict(reversed(list(terms.items()))), dict(reversed(list(w.items())))) == expected
+    columns = {n: np.array([t[n] for t in rows]) for n in reversed(spec.term_names)}
+    assert weighted_total(columns, w).tolist() == [spec.total_cost(t, w) for t in rows]

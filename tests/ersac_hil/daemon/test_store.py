@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.daemon.store import SCHEMA_VERSION, Store, StoreError, UpdateRecord
 from protocol.zenoh import EpisodeResult, get_task
+from protocol.zenoh.tasks import weighted_total
 
 SPEC = get_task("bracing")
 
@@ -184,7 +185,7 @@ def test_recosting_is_exact(tmp_path_factory, terms, weights):
         change = s.record_weights("w", weights, "test")
         assert change.kind == "weights" and change.value == weights and change.n_updates == len(terms)
         for ep, t in zip(s.ok_episodes("w"), terms):
-            expected = math.fsum(weights[k] * t[k] for k in SPEC.term_names)
+            expected = weighted_total(t, weights)  # the contract's one sum
             assert ep.cost == expected  # exact, not approx
             assert ep.cost_terms == t  # raw terms never change
         assert s.attempts("w", "fault_heartbeat")[0].cost is None

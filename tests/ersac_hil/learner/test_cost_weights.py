@@ -18,6 +18,7 @@ from ersac_hil.learner import (
     Observations,
     UnknownTermError,
 )
+from protocol.zenoh import TASKS
 
 NAMES = ("energy", "impact", "translation")
 finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
@@ -107,3 +108,18 @@ def test_learner_reweight_changes_the_critic_and_is_exact() -> None:
     L.reweight(base)
     assert L.observations.costs.tolist() == before.tolist()
     assert not math.isnan(slope_base)
+
+
+@settings(max_examples=60, deadline=None)
+@given(task=st.sampled_from(sorted(TASKS)), data=st.data())
+def test_the_learners_cost_is_the_agents_total_cost_bit_for_bit(task, data) -> None:
+    """The cost the learner fits and the total the agent reports (and the store's, the
+    dashboard's, reproduce's) are one sum (the contract's ``weighted_total``), to the last bit;
+    lifting's six terms told the two apart when they were summed in two ways."""
+    spec = TASKS[task]
+    terms = data.draw(st.fixed_dictionaries({n: st.floats(0.0, 1e4) for n in spec.term_names}))
+    weights = data.draw(st.fixed_dictionaries({n: st.floats(0.0, 100.0) for n in spec.term_names}))
+    assert CostWeights(spec.default_weights).combine(terms) == spec.total_cost(terms)
+    assert CostWeights(weights).combine(terms) == spec.total_cost(terms, weights)
+    rows = np.array([[terms[n] for n in sorted(spec.term_names)]] * 3)
+    assert CostWeights(weights).combine_rows(rows).tolist() == [spec.total_cost(terms, weights)] * 3
