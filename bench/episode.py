@@ -1,12 +1,21 @@
 """Episode speed through the whole stack: Zenoh query -> agent -> CANopen -> simulator.
 
-    python bench/episode.py [--episodes N] [--realtime]
+    python bench/episode.py [--episodes N] [--realtime] [--drives ubot-board|cia402|cia402-cst]
+    python bench/episode.py --realtime --only direct --drives cia402-cst --minutes 10
 
 Per available CAN backend, runs N bracing (theta 0.5) and N lifting (a sensible spline)
 episodes by ``episode/run`` queries from a Zenoh client through an embedded router, and prints
 the median wall time, the real-time factor (simulated episode time / wall time) and the
 SYNC-cycle latency (SYNC sent -> last TPDO of that SYNC received) p50/p99 as the agent measured
-it. Backends:
+it; in real time also each SYNC's jitter against its slot on the absolute schedule and the
+host's compute time per cycle (a cycle's TPDOs to the next SYNC, pacing excluded) p50/p99/max,
+and the missed periods. Drive profiles (both processes get the description): ``--drives
+ubot-board`` (the uBot boards, ``ubot5``, the default), ``cia402`` (``ubot5-cia402``: wheels in
+CST with the host's LQR, arms and torso in CSP with the drives' impedance), ``cia402-cst``
+(the same robot with every axis in CST: the impedance law on the host every SYNC, the host
+torque loop), or ``--description NAME|PATH``. ``--minutes M`` runs bracing and lifting
+episodes in turn for M minutes instead of N each (the endurance figure: p99 is the worst
+episode's, an upper bound of the p99 over all cycles). Backends:
 
 * ``virtual``: agent and simulated robot in this process (python-can's virtual bus is
   in-process only);
@@ -47,6 +56,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -76,30 +86,61 @@ def wait_for_agent(session, timeout_s: float = 10.0) -> None:
     raise RuntimeError(f"no agent at {KS.agent_alive} within {timeout_s} s")
 
 
-def run_episodes(session, n: int) -> dict[str, list[EpisodeResult]]:
+def run_episode(session, task: str, seed: int) -> EpisodeResult:
+    req = EpisodeRequest(f"bench-{uuid.uuid4().hex[:8]}", task, TASKS[task], seed)
+    (reply,) = list(session.get(KS.episode_run, payload=req.to_json(), timeout=120))
+    if reply.ok is None:
+        raise RuntimeError(ErrorReply.from_json(reply.err.payload.to_bytes()).reason)
+    return EpisodeResult.from_json(reply.ok.payload)
+
+
+def run_episodes(session, n: int, minutes: float | None = None) -> dict[str, list[EpisodeResult]]:
+    """``n`` episodes of each task, or (``minutes``) both tasks in turn until that long passed."""
     wait_for_agent(session)
-    out: dict[str, list[EpisodeResult]] = {}
-    for task, theta in TASKS.items():
-        out[task] = []
-        for seed in range(n):
-            req = EpisodeRequest(f"bench-{uuid.uuid4().hex[:8]}", task, theta, seed)
-            (reply,) = list(session.get(KS.episode_run, payload=req.to_json(), timeout=120))
-            if reply.ok is None:
-                raise RuntimeError(ErrorReply.from_json(reply.err.payload.to_bytes()).reason)
-            out[task].append(EpisodeResult.from_json(reply.ok.payload))
+    out: dict[str, list[EpisodeResult]] = {task: [] for task in TASKS}
+    if minutes is None:
+        for task in TASKS:
+            out[task] = [run_episode(session, task, seed) for seed in range(n)]
+        return out
+    end, seed = time.monotonic() + 60.0 * minutes, 0
+    while time.monotonic() < end:
+        for task in TASKS:
+            out[task].append(run_episode(session, task, seed))
+        seed += 1
     return out
 
 
-def in_process(config: BusConfig, n: int, realtime: bool) -> dict[str, list[EpisodeResult]]:
+DRIVES = {"ubot-board": "ubot5", "cia402": "ubot5-cia402", "cia402-cst": "ubot5-cia402"}
+"""``--drives``: the shipped description of each profile (``cia402-cst``: every axis in CST)."""
+
+
+def description_for(drives: str, workdir: Path) -> str:
+    """The ``--description`` both processes get for ``--drives``: a shipped name, or for
+    ``cia402-cst`` a copy of ``ubot5-cia402`` with its impedance axes in CST in ``workdir``."""
+    name = DRIVES[drives]
+    if drives != "cia402-cst":
+        return name
+    from protocol.robot.load import SHIPPED_DIR
+    text = (SHIPPED_DIR / f"{name}.toml").read_text()
+    path = workdir / f"{name}-cst.toml"
+    path.write_text(text.replace('name = "ubot5-cia402"', 'name = "ubot5-cia402-cst"')
+                        .replace('mode = "csp-impedance"', 'mode = "cst"'))
+    return str(path)
+
+
+def in_process(config: BusConfig, n: int, realtime: bool, description: str | None = None,
+               minutes: float | None = None) -> dict[str, list[EpisodeResult]]:
     from ersac_hil.agent.bus import BusTiming
     from ersac_hil.agent.service import AgentConfig, AgentService
     from firmware_sim.nodes.simrobot import SimulatedRobot
+    from protocol.robot import load_description
 
-    with EmbeddedRouter() as router, SimulatedRobot(config, realtime=realtime):
+    robot = load_description(description or "ubot5")
+    with EmbeddedRouter() as router, SimulatedRobot(config, realtime=realtime, description=robot):
         agent = AgentConfig(robot=ROBOT, bus=config, zenoh_connect=(router.endpoint,),
-                            timing=BusTiming(realtime=realtime))
+                            timing=BusTiming(realtime=realtime), description=robot)
         with AgentService(agent), router.open_client() as session:
-            return run_episodes(session, n)
+            return run_episodes(session, n, minutes)
 
 
 def _ready(proc: subprocess.Popen, marker: str) -> str:
@@ -121,11 +162,15 @@ DIRECT = "direct"
 
 def processes(config: BusConfig | str | None, n: int, realtime: bool,
               checkout: Path | None = None, python: str = sys.executable,
-              busy_poll: float = 0.0, agent_args: tuple[str, ...] = ()) -> dict[str, list[EpisodeResult]]:
+              busy_poll: float = 0.0, agent_args: tuple[str, ...] = (), description: str | None = None,
+              minutes: float | None = None) -> dict[str, list[EpisodeResult]]:
     """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router;
     ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's), run by ``python``
-    from ``checkout`` (default: this one); ``busy_poll``: both CAN-over-Zenoh buses' (s, 0: off)."""
+    from ``checkout`` (default: this one); ``busy_poll``: both CAN-over-Zenoh buses' (s, 0: off);
+    ``description``: both processes' robot description (default theirs, the boards')."""
     extra = ["--realtime"] if realtime else []
+    if description is not None:
+        extra += ["--description", description]
     polling = [f"busy_poll={busy_poll}"] if busy_poll else []
     procs = []
     try:
@@ -153,7 +198,7 @@ def processes(config: BusConfig | str | None, n: int, realtime: bool,
             if realtime:
                 print("  " + "; ".join(line for line in scheduling if line))
             with router.open_client() as session:
-                return run_episodes(session, n)
+                return run_episodes(session, n, minutes)
     finally:
         for p in procs:
             p.terminate()
@@ -175,11 +220,25 @@ def report(backend: str, results: dict[str, list[EpisodeResult]]) -> None:
               f"RTF {sim / wall:5.2f}  {cycles / wall:6.0f} cycles/s  "
               f"SYNC latency p50 {p50:5.2f} ms  p99 {p99:6.2f} ms  max {worst:6.2f} ms  "
               f"missed periods {missed}/{total:.0f}")
+        if "sync_jitter_p99_ms" in rs[0].telemetry:  # real time
+            print(f"{'':<10} {task:<8} SYNC latency p99 median {_median(rs, 'sync_latency_p99_ms'):5.2f} ms  "
+                  f"jitter p50/p99/max {_median(rs, 'sync_jitter_p50_ms'):5.3f}/{_worst(rs, 'sync_jitter_p99_ms'):5.3f}/"
+                  f"{_worst(rs, 'sync_jitter_max_ms'):5.3f} ms  host compute p50/p99/max "
+                  f"{_median(rs, 'host_compute_p50_ms'):5.3f}/{_worst(rs, 'host_compute_p99_ms'):5.3f}/"
+                  f"{_worst(rs, 'host_compute_max_ms'):5.3f} ms  ({len(rs)} episodes)")
+
+
+def _median(rs: list[EpisodeResult], key: str) -> float:
+    return statistics.median(r.telemetry.get(key, float("nan")) for r in rs)
+
+
+def _worst(rs: list[EpisodeResult], key: str) -> float:
+    return max(r.telemetry.get(key, float("nan")) for r in rs)
 
 
 def _measured(r: EpisodeResult) -> tuple:
     """What an episode measured (not how fast): identical for the same seed and policy."""
-    timing = ("sync_latency_p50_ms", "sync_latency_p99_ms", "sync_latency_max_ms")
+    timing = {f"{name}_{q}_ms" for name in ("sync_latency", "sync_jitter", "host_compute") for q in ("p50", "p99", "max")}
     return (r.status, sorted(r.cost_terms.items()), r.total_cost, sorted(r.failures.items()),
             sorted((k, v) for k, v in r.telemetry.items() if k not in timing))
 
@@ -200,16 +259,19 @@ def compare(args: argparse.Namespace) -> int:
     if os.sep in python:  # a path: it runs from the other checkout
         python = str(Path(python).absolute())
     here = Path(__file__).resolve().parents[1]
+    robot = None if args.robot == "ubot5" else args.robot  # an older checkout may not know --description
     same = True
     for rnd in range(1, args.rounds + 1):
-        base = _on(args.baseline_bus, lambda c: processes(c, args.episodes, args.realtime, other, python))
+        base = _on(args.baseline_bus, lambda c: processes(c, args.episodes, args.realtime, other, python,
+                                                          description=robot))
         print(f"round {rnd}  load average {os.getloadavg()[0]:.2f}")
         report(f"base-{args.baseline_bus}", base)
         for backend in args.only or ("zenoh",):
             if backend == "virtual":
                 continue
             new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here,
-                                                   busy_poll=args.busy_poll, agent_args=args.agent_args))
+                                                   busy_poll=args.busy_poll, agent_args=args.agent_args,
+                                                   description=robot))
             report(backend, new)
             if args.realtime:  # the physics follows the wall clock: episodes differ by design
                 continue
@@ -241,32 +303,55 @@ def main() -> int:
                              "0 in real time, where it gained nothing; 0 = off)")
     parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), default=(),
                         help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"")
+    robot = parser.add_mutually_exclusive_group()
+    robot.add_argument("--drives", choices=tuple(DRIVES), default="ubot-board",
+                       help="drive profile of simulator and agent (default ubot-board; cia402-cst: every "
+                            "axis in CST, the impedance law on the host)")
+    robot.add_argument("--description", metavar="NAME|PATH", help="robot description of both processes")
+    parser.add_argument("--minutes", type=float, metavar="M",
+                        help="both tasks in turn for M minutes instead of --episodes each")
     args = parser.parse_args()
+    if args.minutes is not None and (args.minutes <= 0 or args.baseline is not None):
+        parser.error("--minutes must be positive and is not for --baseline")
+    if args.description is not None:
+        from protocol.robot import DescriptionError, load_description
+        try:
+            load_description(args.description)
+        except (DescriptionError, OSError) as exc:
+            parser.error(f"--description: {exc}")
+    with tempfile.TemporaryDirectory(prefix="bench-episode-") as tmp:
+        args.robot = args.description or description_for(args.drives, Path(tmp))
+        return _main(args)
+
+
+def _main(args: argparse.Namespace) -> int:
     if args.busy_poll is None:
         args.busy_poll = 0.0 if args.realtime else busy_poll_for(1)
     mode = "real-time" if args.realtime else "lock-step"
     print(f"load average {os.getloadavg()[0]:.2f} (2-core machine shared with other jobs)")
-    print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {args.episodes} per task; "
+    amount = f"{args.minutes:g} minutes" if args.minutes else f"{args.episodes} per task"
+    print(f"episodes through Zenoh -> agent -> CAN -> simulator ({mode}, {amount}, robot {args.robot}; "
           f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
     if args.baseline is not None:
         return compare(args)
     only = args.only or ("virtual", "remote", "zenoh", DIRECT)
+    robot = {"description": args.robot, "minutes": args.minutes}
     if "virtual" in only:
         report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
-                                     args.episodes, args.realtime))
+                                     args.episodes, args.realtime, **robot))
     if "remote" in only:
         with LoopbackHub() as hub:
-            report("remote", processes(hub.bus_config, args.episodes, args.realtime))
+            report("remote", processes(hub.bus_config, args.episodes, args.realtime, **robot))
     if "zenoh" in only:
-        report("zenoh", processes(None, args.episodes, args.realtime, busy_poll=args.busy_poll))
+        report("zenoh", processes(None, args.episodes, args.realtime, busy_poll=args.busy_poll, **robot))
     if DIRECT in only:
-        report(DIRECT, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll))
+        report(DIRECT, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll, **robot))
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.only:
         return 0
     status = vcan_status("vcan0")
     if status.available:
-        report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime))
+        report("socketcan", processes(BusConfig("socketcan", "vcan0"), args.episodes, args.realtime, **robot))
     else:
         print(f"socketcan  skipped: {status.reason}")
     return 0

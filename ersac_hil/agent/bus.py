@@ -45,7 +45,7 @@ import threading
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 import canopen
@@ -68,6 +68,10 @@ from protocol.can.objects import Scale
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
 
 log = logging.getLogger(__name__)
+
+SPIN_S = 0.0003
+"""Real time: the last part of the wait for a SYNC's slot spent spinning on the clock, not
+asleep (docs/performance.md)."""
 
 
 @dataclass(frozen=True)
@@ -122,6 +126,17 @@ class EmcyEvent:
     time_s: float
 
 
+@dataclass
+class CycleTimes:
+    """Wall-clock figures of the real-time cycles since ``AgentBus.reset_pacing`` (none in
+    lock-step): per cycle, how late its SYNC went out against its slot on the absolute
+    schedule (``jitter_s``), and the host's time from the previous cycle's TPDOs to this
+    cycle's frames ready to go (``compute_s``: decoding, the controller, the caller's
+    observers, encoding the RPDOs; the wait for the slot follows it)."""
+    jitter_s: list[float] = field(default_factory=list)
+    compute_s: list[float] = field(default_factory=list)
+
+
 class AgentBus:
     """CANopen master of the uBot (see the module docstring). Not re-entrant: one
     caller thread drives ``cycle`` and the SDO helpers."""
@@ -149,6 +164,8 @@ class AgentBus:
         self.cycles = 0
         self.overruns = 0
         self._next_sync: float | None = None
+        self._received_at: float | None = None  # when the last real-time cycle had its TPDOs
+        self.times = CycleTimes()
         self._last_commands = Commands()
         self._sdo_requests: dict[str, int] = {}
         self._sdo_answers: dict[str, int] = {}
@@ -394,8 +411,9 @@ class AgentBus:
 
     # -- the SYNC cycle ---------------------------------------------------------------------
     def reset_pacing(self) -> None:
-        """Forget the real-time schedule (the next cycle starts a new one)."""
-        self._next_sync = None
+        """Forget the real-time schedule (the next cycle starts a new one) and its ``times``."""
+        self._next_sync = self._received_at = None
+        self.times = CycleTimes()
 
     def cycle(self, commands: Commands | None = None) -> Telemetry:
         """One SYNC cycle: RPDOs with ``commands`` (the last ones if ``None``), SYNC, then
@@ -410,19 +428,25 @@ class AgentBus:
             self._last_commands = commands
         net = self.net
         self.check_heartbeats()
-        if self.timing.realtime:
+        # encoded before the pacing wait (the cycle count the encoder sees is the last cycle's)
+        frames = self._encoder.encode(self._last_commands)  # type: ignore[union-attr]
+        frames.append((cobid.SYNC, b""))
+        realtime = self.timing.realtime
+        if realtime:
+            if self._received_at is not None:
+                self.times.compute_s.append(time.perf_counter() - self._received_at)
             self._pace()
         self.cycles = cycle = self.cycles + 1  # only this thread writes it (EMCY callbacks read it)
         tpdos = self._tpdos
         tpdos.expect()  # type: ignore[union-attr]
-        frames = self._encoder.encode(self._last_commands)  # type: ignore[union-attr]
-        frames.append((cobid.SYNC, b""))
         try:
             t0 = time.perf_counter()
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
         timing = self.timing
+        if realtime:
+            self.times.jitter_s.append(t0 - self._next_sync)  # type: ignore[operator]
         received, missing = tpdos.wait(t0 + timing.deadline_s, give_up=timing.realtime)  # type: ignore[union-attr]
         silent = ()
         if missing and not timing.realtime:  # lock-step: late, or gone? wait generously
@@ -430,7 +454,8 @@ class AgentBus:
             silent = [d for d in sorted({self._tpdo_device[c] for c in missing})
                       if ages[d] is None or ages[d] > timing.heartbeat_timeout_s]
             received, missing = tpdos.wait(t0 + timing.tpdo_wait_s)  # type: ignore[union-attr]
-        latency = time.perf_counter() - t0
+        self._received_at = time.perf_counter()
+        latency = self._received_at - t0
         if missing:
             self._raise_if_bus_down()
             ages = self.heartbeat_ages()
@@ -454,6 +479,9 @@ class AgentBus:
             raise BusFault(f"SYNC cycle {self.cycles if cycle is None else cycle}: {fault}")
 
     def _pace(self) -> None:
+        """Until the next slot of the absolute schedule (``period_s`` apart from the first):
+        asleep until ``SPIN_S`` before it, then spinning on the clock (a sleeping thread wakes
+        tens to hundreds of microseconds late on a virtual machine)."""
         now = time.perf_counter()
         period = self.timing.period_s
         if self._next_sync is None:
@@ -463,9 +491,12 @@ class AgentBus:
             if self._next_sync < now - period:  # more than a slot behind: re-phase
                 self.overruns += 1
                 self._next_sync = now
-        wait = self._next_sync - time.perf_counter()
+        due = self._next_sync
+        wait = due - SPIN_S - time.perf_counter()
         if wait > 0:
             time.sleep(wait)
+        while time.perf_counter() < due:
+            pass
 
     def _raise_if_bus_down(self) -> None:
         try:

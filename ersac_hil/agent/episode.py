@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from ersac_hil.agent import configure, costs
-from ersac_hil.agent.bus import AgentBus, EmcyEvent
+from ersac_hil.agent.bus import AgentBus, CycleTimes, EmcyEvent
 from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
 from ersac_hil.agent.limits import SetpointLimits
 from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
@@ -55,6 +55,7 @@ from ersac_hil.agent.safety import BoardQuickStop, EstopEngaged, QuickStop, Safe
 from ersac_hil.agent.tasks import EmcyMark, Task, default_tasks, lookup
 from ersac_hil.agent.telemetry import Commands, Telemetry, Trace
 from protocol.can.devices import TESTBENCH
+from protocol.can.realtime import gc_paused
 from protocol.can.objects import EmcyCode, Status
 from protocol.zenoh import TASKS, EpisodeRequest, EpisodeResult
 
@@ -130,6 +131,7 @@ class _Episode:
     detail: str = ""
     emcy: list[EmcyEvent] = field(default_factory=list)
     truth: dict[str, float] = field(default_factory=dict)
+    times: CycleTimes = field(default_factory=CycleTimes)  # real time: SYNC jitter, host compute
 
     def count(self, name: str, n: int = 1) -> None:
         self.counts[name] = self.counts.get(name, 0) + n
@@ -213,7 +215,8 @@ class EpisodeRunner:
             bus.nmt_start()
             started = True
             bus.enable_drives()
-            self._loop(plan, episode, first, emcy_mark)
+            with gc_paused():
+                self._loop(plan, episode, first, emcy_mark)
         except AgentFault as exc:
             episode.status, episode.detail = exc.status, str(exc)
             episode.count(_fault_counter(exc))
@@ -315,6 +318,7 @@ class EpisodeRunner:
             if beginning is not None:  # never leave an SDO transfer running into the next episode
                 beginning.settle()
             episode.count("late_cycles", bus.overruns - overruns0)
+            episode.times = bus.times
             episode.count("saturated_cycles", ctl.saturated_cycles)
             if ctl.fallen:
                 episode.failures["fallen"] = True
@@ -374,6 +378,12 @@ class EpisodeRunner:
             summary["sync_latency_p50_ms"] = float(np.percentile(lat, 50))
             summary["sync_latency_p99_ms"] = float(np.percentile(lat, 99))
             summary["sync_latency_max_ms"] = float(lat.max())
+        for name, values in (("sync_jitter", episode.times.jitter_s), ("host_compute", episode.times.compute_s)):
+            if values:  # real time only
+                ms = np.array(values) * 1000.0
+                summary[f"{name}_p50_ms"] = float(np.percentile(ms, 50))
+                summary[f"{name}_p99_ms"] = float(np.percentile(ms, 99))
+                summary[f"{name}_max_ms"] = float(ms.max())
         summary.update(episode.truth)
         terms: dict[str, float] = {}
         total = None

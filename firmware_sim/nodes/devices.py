@@ -89,9 +89,11 @@ class AxisCounts:
     words: tuple[int, ...]
 
     @classmethod
-    def sample(cls, sim: Simulator) -> "AxisCounts":
-        """From the simulator's present state. ``ValueError`` on a NaN (as ``Scale.to_raw``)."""
-        return cls(axis_counts(sim.axis_values()), _WORDS.of(sim.axis_flags()))
+    def sample(cls, sim: Simulator, values: list[int] | None = None) -> "AxisCounts":
+        """From the simulator's present state (``values``: its axis counts when already
+        computed since the last step; the status words always now). ``ValueError`` on a NaN
+        (as ``Scale.to_raw``)."""
+        return cls(axis_counts(sim.axis_values()) if values is None else values, _WORDS.of(sim.axis_flags()))
 
 
 def counts(values: Iterable[float], scales: Iterable[CountScale]) -> list[int]:

@@ -3,8 +3,13 @@ drive per axis: ``firmware_sim.nodes.cia402``; the IMU and the test bench), SYNC
 
 Lock-step (default): each SYNC applies the RPDOs received since the previous SYNC, advances
 exactly one control period of physics, sends the failure EMCYs of that period, then every
-node samples and sends its synchronous TPDOs. Real-time: a physics thread steps on the wall
-clock (overruns counted) and SYNC only applies commands and samples. In lock-step the
+node samples and sends its synchronous TPDOs. Real-time: SYNC applies commands, samples and
+answers from the present state at once (as a drive samples at SYNC), and a physics thread
+advances one period right after each answer; it steps on the wall clock (overruns counted)
+whenever no SYNC has come for half a period past its due time (the agent between episodes).
+So a SYNC never waits for a physics step: on two cores under ``SCHED_FIFO`` a step running
+when a SYNC arrives held the receive thread off its processor and the GIL for as long as
+the step took (the bulk of the real-time tail, docs/performance.md). In lock-step the
 controllers' watchdog on the agent's heartbeat counts SYNC periods as well as the wall clock
 (``SlaveNode``'s ``lockstep_period_s``): an agent a loaded machine stalls is not lost.
 """
@@ -47,6 +52,17 @@ class RobotStats:
     step_seconds: float = 0.0
     overruns: int = 0
     resets: int = 0
+
+
+def realtime_schedule(synced: bool, now: float, last: float, next_t: float, period: float) -> tuple[bool, float]:
+    """The real-time physics thread's decision at ``now`` (``last``: its last step, ``next_t``:
+    its next step on the clock): whether to step, and when to step on the clock next.
+    ``synced``: woken by a SYNC's answer: a step (unless the clock stepped less than half a
+    period before: that period is done), the clock only 1.5 periods on (a SYNC due a period on
+    comes first, so a step never runs when it arrives); else the clock's step, one period on."""
+    if synced:
+        return now - last >= period / 2, now + 1.5 * period
+    return True, next_t + period
 
 
 class SimulatedRobot:
@@ -92,6 +108,8 @@ class SimulatedRobot:
         self._sampler = TpdoSampler(tuple(self.nodes.values()))
         self.network.subscribe(cobid.SYNC, self._on_sync)
         self._stop = threading.Event()
+        self._answered = threading.Event()  # real time: a SYNC was answered, step now
+        self._sampled: tuple[list[int], list[int]] | None = None  # real time: counts after the last step
         self._physics: threading.Thread | None = None
         if realtime:
             self._physics = threading.Thread(target=self._run_realtime, name="physics", daemon=True)
@@ -133,9 +151,17 @@ class SimulatedRobot:
             if not self.realtime:
                 self._step()
             frames: list[tuple[int, bytes]] = []
-            axes = AxisCounts.sample(self.sim)  # once for every node's TPDOs
-            self._sampler.pack(self._row(axes), axes, frames)
+            sampled = self._sampled
+            if sampled is None:
+                axes = AxisCounts.sample(self.sim)  # once for every node's TPDOs
+                row = self._row(axes)
+            else:  # real time: the counts of the state the last step left, taken right after it
+                axes = AxisCounts.sample(self.sim, sampled[0])
+                row = list(sampled[1])  # the sampler writes each node's status word into it
+            self._sampler.pack(row, axes, frames)
             send_frames(self.network, frames)
+        if self.realtime:
+            self._answered.set()
 
     def _row(self, axes: AxisCounts) -> list[int]:
         row = telemetry_row(axes, self.sim.imu())
@@ -153,24 +179,37 @@ class SimulatedRobot:
         return self._row(AxisCounts.sample(self.sim))
 
     def _run_realtime(self) -> None:
-        period = self.sim.control_period
-        next_t = time.monotonic()
-        while not self._stop.is_set():
-            with self.lock:
-                self._step()
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay < 0:
+        """The physics thread (see the module doc and ``realtime_schedule``); after each step
+        the telemetry counts of the new state, for the next SYNC's answer."""
+        period, clock, answered = self.sim.control_period, time.monotonic, self._answered
+        last = next_t = clock()
+        while True:
+            synced = answered.wait(max(0.0, next_t - clock()))
+            if self._stop.is_set():
+                return
+            if synced:
+                answered.clear()
+            now = clock()
+            step, next_t = realtime_schedule(synced, now, last, next_t, period)
+            if step:
+                with self.lock:
+                    self._step()
+                    try:
+                        axes = AxisCounts.sample(self.sim)
+                        self._sampled = (axes.values, self._row(axes))
+                    except ValueError:  # a NaN: the SYNC samples (and fails) as in lock-step
+                        self._sampled = None
+                last = now
+            if not synced and next_t < clock():
                 self.stats.overruns += 1
-                next_t = time.monotonic()
-            elif self._stop.wait(delay):
-                break
+                next_t = clock()
 
     # -- test bench --------------------------------------------------------------------------
     def reset(self, scenario: str, seed: int) -> None:
         """New episode: physics to the scenario's initial state, boards to power-on defaults."""
         with self.lock:
             self.sim.reset(scenario, seed)
+            self._sampled = None
             self.stats.resets += 1
             for node in self.nodes.values():
                 for index in _CONFIG_INDEXES:
@@ -179,6 +218,7 @@ class SimulatedRobot:
 
     def close(self) -> None:
         self._stop.set()
+        self._answered.set()
         if self._physics is not None:
             self._physics.join(timeout=1.0)
         self.network.unsubscribe(cobid.SYNC, self._on_sync)

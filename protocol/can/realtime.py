@@ -8,14 +8,17 @@ inherit the policy). Where that is not permitted (no CAP_SYS_NICE, RLIMIT_RTPRIO
 Linux) the process keeps normal scheduling and says why.
 
 Both processes also keep Python's cyclic garbage collector off the SYNC path
-(:func:`quiet_gc`), in lock-step and real time alike.
+(:func:`quiet_gc`), in lock-step and real time alike; the agent switches it off for the
+SYNC loop of an episode altogether (:func:`gc_paused`).
 """
 from __future__ import annotations
 
 import gc
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
-__all__ = ["SYNC_PRIORITY", "GC_YOUNG_THRESHOLD", "request_realtime", "quiet_gc"]
+__all__ = ["SYNC_PRIORITY", "GC_YOUNG_THRESHOLD", "request_realtime", "quiet_gc", "gc_paused"]
 
 #: Allocations between two collections of the youngest generation (Python's default is 700).
 GC_YOUNG_THRESHOLD = 50_000
@@ -63,3 +66,20 @@ def quiet_gc(young: int = GC_YOUNG_THRESHOLD) -> None:
     gc.freeze()
     _, older, oldest = gc.get_threshold()
     gc.set_threshold(young, older, oldest)
+
+
+@contextmanager
+def gc_paused() -> Iterator[None]:
+    """No cyclic garbage collection inside the block (a SYNC loop of a few thousand cycles);
+    the collector as it was afterwards (then a young collection, when its threshold says).
+    Even with :func:`quiet_gc`'s threshold a young collection walks tens of thousands of
+    objects, a millisecond or more in one period; an episode's loop makes no reference
+    cycles worth collecting. Nested or concurrent use on another thread leaves the collector
+    off until the last block that found it on ends."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()

@@ -167,3 +167,41 @@ def test_setpoint_sent_with_the_enabling_rpdo_takes_effect(rig):
     send(arm.rpdo.map[1], o.POSITION.to_raw(target), elbow, int(Control.ENABLE))
     sync_and_wait(net, rec, N_TPDO)
     assert robot.sim.controller("arm_left").setpoint("shoulder_left") == pytest.approx(target, abs=1e-3)
+
+
+def _physics_steps(answers: list[float], until: float, period: float = 0.005) -> list[float]:
+    """When the real-time physics thread steps (``realtime_schedule``), SYNCs answered at
+    ``answers`` (s), until ``until``: the thread's loop, woken by an answer or its clock."""
+    from firmware_sim.nodes.simrobot import realtime_schedule
+    steps, last, next_t, pending = [], 0.0, 0.0, sorted(answers)
+    while True:
+        synced = bool(pending) and pending[0] <= next_t
+        now = pending.pop(0) if synced else next_t
+        if now > until:
+            return steps
+        step, next_t = realtime_schedule(synced, now, last, next_t, period)
+        if step:
+            steps.append(now)
+            last = now
+
+
+def test_realtime_physics_steps_right_after_each_sync_answer_and_on_the_clock_without():
+    period = 0.005
+    # no SYNC: a step every period on the clock
+    assert _physics_steps([], 0.0501) == pytest.approx([k * period for k in range(11)])
+    # SYNCs every period from 13.3 ms: after the clock's steps, one step per answer, at the answer
+    answers = [0.0133 + k * period for k in range(40)]
+    steps = _physics_steps(answers, answers[-1])
+    locked = [t for t in steps if t >= answers[0]]
+    assert locked == pytest.approx(answers)  # no step on the clock in between: none can meet a SYNC
+    # the SYNCs stop: the clock takes over 1.5 periods after the last answer, then every period
+    after = _physics_steps(answers, answers[-1] + 0.0201)
+    assert after[len(steps):] == pytest.approx([answers[-1] + (1.5 + k) * period for k in range(3)])
+
+
+def test_realtime_physics_takes_no_second_step_for_a_sync_right_after_a_clock_step():
+    period = 0.005
+    steps = _physics_steps([0.0101 + k * period for k in range(5)], 0.031)  # the clock stepped at 10 ms
+    assert steps[:3] == pytest.approx([0.0, 0.005, 0.010])
+    assert steps[3:] == pytest.approx([0.0151, 0.0201, 0.0251, 0.0301])  # the 10.1 ms SYNC: no step
+    assert len(steps) == 7  # one step a period all along

@@ -187,6 +187,17 @@ def test_realtime_episode_paces_sync_by_the_wall_clock():
     assert len(syncs) == 400
     early = [k for k, t in enumerate(syncs) if t - syncs[0] < k * 0.005 - 1e-3]
     assert not early, f"SYNCs sent ahead of the period's schedule: {early[:10]}"
+    # the real-time figures: each SYNC's lateness against its slot, the host's time per cycle
+    for name in ("sync_jitter", "host_compute"):
+        p50, p99, worst = (r.telemetry[f"{name}_{q}_ms"] for q in ("p50", "p99", "max"))
+        assert 0.0 <= p50 <= p99 <= worst, name
+
+
+def test_lock_step_episodes_carry_no_real_time_figures(rig):
+    _, bus, runner = rig
+    r = run(runner, "bracing", (0.5,))
+    assert r.status == "ok" and "sync_latency_p99_ms" in r.telemetry
+    assert not [k for k in r.telemetry if k.startswith(("sync_jitter", "host_compute"))]
 
 
 @dataclass(frozen=True)
