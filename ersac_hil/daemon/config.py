@@ -28,7 +28,6 @@ optional ``[weights]`` table::
 from __future__ import annotations
 
 import re
-import tomllib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -39,6 +38,7 @@ from msgspec.structs import force_setattr
 from protocol.zenoh import DEFAULT_PREFIX, KAPPA_MAX, KAPPA_MIN, InvalidField, KeySpace, get_task
 from protocol.zenoh.codec import ID_PATTERN
 from protocol.zenoh.fields import Finite, Name, NonNegative, Positive, Record, converting
+from protocol.tomlfile import read_toml
 from protocol.zenoh.tasks import TaskName
 
 if TYPE_CHECKING:
@@ -319,13 +319,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     Raises:
         ConfigError: unreadable file, invalid TOML, unknown key.
     """
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as exc:
-        raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    data = read_toml(path, ConfigError, "config file ")
     unknown = sorted(set(data) - (_FIELD_NAMES - {"explicit"}))
     if unknown:
         raise ConfigError(f"config file {path}: unknown keys {unknown}; known: {sorted(_FIELD_NAMES)}")

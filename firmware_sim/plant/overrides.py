@@ -37,13 +37,14 @@ the lifting scenario. No overrides: the model exactly as it is, bit for bit.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import mujoco
+
+from protocol.tomlfile import read_toml
 
 from .damage import CableSpec
 from .physics import AXES
@@ -142,13 +143,7 @@ class PhysicsOverrides:
     @classmethod
     def load(cls, path: str | Path) -> PhysicsOverrides:
         """Read a TOML physics file (:class:`PhysicsError` naming the file on any problem)."""
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except OSError as exc:
-            raise PhysicsError(f"cannot read {path}: {exc.strerror or exc}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise PhysicsError(f"{path} is not valid TOML: {exc}") from None
+        data = read_toml(path, PhysicsError)
         try:
             return cls.from_mapping(data)
         except PhysicsError as exc:

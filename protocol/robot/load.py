@@ -1,4 +1,4 @@
-"""Reading and checking a robot description (TOML, stdlib ``tomllib``).
+"""Reading and checking a robot description (TOML, ``protocol.tomlfile.read_toml``).
 
 ``load_description(name_or_path)`` takes a shipped description's NAME (``ubot5``, the default,
 or ``ubot5-cia402``; files in protocol/robots/) or a path to a ``.toml`` file and returns a
@@ -17,7 +17,6 @@ import difflib
 import functools
 import math
 import re
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 from protocol.robot.eds import object_dictionary_file
 from protocol.robot.model import (MODES, PROFILES, Axis, BenchNode, Bus, DescriptionError, ImuNode, Node,
                                   ObjectRef, Range, RobotDescription, eds_path)
+from protocol.tomlfile import read_toml
 
 SHIPPED_DIR = Path(__file__).resolve().parents[1] / "robots"
 DEFAULT_NAME = "ubot5"
@@ -65,14 +65,7 @@ def _shipped(name: str) -> RobotDescription:
 
 def _load_file(path: Path, label: str | None = None, check_eds: bool = True) -> RobotDescription:
     """The description in ``path``; errors start with ``label`` (default: the path)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DescriptionError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DescriptionError(f"{path}: not valid TOML: {exc}") from None
+    data = read_toml(path, DescriptionError)
     try:
         return parse_description(data, base=path.resolve().parent, source=str(path), check_eds=check_eds)
     except DescriptionError as exc:
