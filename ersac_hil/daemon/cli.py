@@ -8,7 +8,8 @@ Clients (Zenoh client sessions): ``state``, ``kappa get|set``, ``weights get|set
 
 Exit codes: 0 ok (also: the latest run is already finished, nothing to do), 1 request
 refused / no answer, 2 invalid arguments or configuration,
-3 run failed, 4 agent absent too long, 128+N on signal N.
+3 run failed, 4 agent absent too long, 5 the store cannot be written (disk full, I/O error;
+the run stops with nothing half-written and resumes once there is space), 128+N on signal N.
 """
 from __future__ import annotations
 
@@ -52,7 +53,8 @@ def _daemon(args: argparse.Namespace) -> int:
     from .config import ConfigError, load_toml, merge
     from .runs import RunFinished
     from .service import Daemon
-    from .store import StoreError
+    from .service import EXIT_STORE
+    from .store import StoreError, StoreUnwritable
     from ersac_hil.zenoh_session import ZenohSessionError
 
     flags: dict[str, Any] = {
@@ -75,6 +77,8 @@ def _daemon(args: argparse.Namespace) -> int:
     except RunFinished as exc:  # a supervisor's restart after the end: not an error
         print(f"ersac-hil daemon: {exc}", flush=True)
         return 0
+    except StoreUnwritable as exc:  # at start: the new run or the resumed run's first write
+        return _fail(str(exc), EXIT_STORE)
     except (ConfigError, StoreError) as exc:
         return _fail(str(exc))
     except ZenohSessionError as exc:

@@ -60,9 +60,9 @@ from .fleet import Finished, Fleet
 from .handlers import ControlHandlers
 from .learning import LearningRun
 from .runs import check_store, episode_id, scenario_seed
-from .store import Store, UpdateRecord
+from .store import Store, StoreError, StoreUnwritable, UpdateRecord
 
-__all__ = ["Daemon", "RunFailed", "EXIT_FAILED", "EXIT_NO_AGENT", "MAX_REDRAWS"]
+__all__ = ["Daemon", "RunFailed", "EXIT_FAILED", "EXIT_NO_AGENT", "EXIT_STORE", "MAX_REDRAWS"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,9 @@ log = logging.getLogger(__name__)
 EXIT_FAILED = 3
 #: Exit status when the agent stayed absent longer than ``agent_wait_s`` (run resumable).
 EXIT_NO_AGENT = 4
+#: Exit status when the store could not be written (disk full, I/O error): the run stops at
+#: once, nothing half-written; it is resumable once the cause is gone.
+EXIT_STORE = 5
 #: Perturbations of one episode the agent may refuse (``invalid_request``) before the run fails.
 MAX_REDRAWS = 20
 
@@ -161,7 +164,11 @@ class Daemon:
         if self.fleet is not None:
             self.fleet.close()
         if self.learning is not None:
-            self.store.interrupt_pending(self.learning.run_id, "daemon stopped during the episode")
+            try:
+                self.store.interrupt_pending(self.learning.run_id, "daemon stopped during the episode")
+            except StoreError as exc:  # the next start marks them interrupted instead
+                if self.exit_code != EXIT_STORE:  # (else the run's stop said why already)
+                    log.warning("pending attempts left pending: %s", exc)
         if self.session is not None:
             self.session.close()
         if self.store is not None:
@@ -191,6 +198,11 @@ class Daemon:
             self._print(f"giving up: {exc}; the run stays resumable")
             self.exit_code = EXIT_NO_AGENT
             learning.status = "paused"
+            self.finished.set()
+        except StoreUnwritable as exc:
+            self._print(f"run {learning.run_id} stopped: {exc}; the run stays resumable")
+            self.exit_code = EXIT_STORE
+            learning.status = "stopped"
             self.finished.set()
         except RunFailed as exc:
             self._print(f"run {learning.run_id} failed: {exc}")

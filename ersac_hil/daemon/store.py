@@ -57,6 +57,7 @@ __all__ = [
     "CHANGE_KINDS",
     "StoreError",
     "RunNotFound",
+    "StoreUnwritable",
     "Store",
     "RunRecord",
     "EpisodeRecord",
@@ -214,6 +215,16 @@ class StoreError(RuntimeError):
 
 class RunNotFound(StoreError):
     """No run with that id."""
+
+
+class StoreUnwritable(StoreError):
+    """SQLite could not write a transaction (the disk is full, an I/O error, the file is read-only
+    or locked by another writer): nothing of the transaction is stored, what was committed before
+    stays as it was; the run is resumable once the cause is gone."""
+
+
+_UNWRITABLE = ("SQLITE_FULL", "SQLITE_IOERR", "SQLITE_READONLY", "SQLITE_BUSY", "SQLITE_LOCKED", "SQLITE_CANTOPEN")
+"""SQLite's result codes (and their extended codes) of a write the file system or another writer refused."""
 
 
 def _wal(path: Path) -> Path:
@@ -451,15 +462,31 @@ class Store:
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
-        """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on error), under the lock."""
+        """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on error), under the lock.
+
+        Raises:
+            StoreUnwritable: SQLite could not write it (``SQLITE_FULL``, ``SQLITE_IOERR``...,
+                also a failed ``COMMIT``): rolled back, nothing of it stored.
+        """
         with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
             try:
-                yield self._db
-            except BaseException:
-                self._db.execute("ROLLBACK")
-                raise
-            self._db.execute("COMMIT")
+                self._db.execute("BEGIN IMMEDIATE")
+                try:
+                    yield self._db
+                    self._db.execute("COMMIT")
+                except BaseException:
+                    if self._db.in_transaction:  # SQLite rolls back by itself after some I/O errors
+                        try:
+                            self._db.execute("ROLLBACK")
+                        except sqlite3.Error:
+                            pass  # the transaction is gone: its journal frames were never committed
+                    raise
+            except sqlite3.OperationalError as exc:
+                name = getattr(exc, "sqlite_errorname", "")
+                if not name.startswith(_UNWRITABLE):
+                    raise  # a mistake of this code (no such table...), not of the disk
+                hint = "; is the disk full?" if name.startswith(("SQLITE_FULL", "SQLITE_IOERR")) else ""
+                raise StoreUnwritable(f"store {self.path} cannot be written: {exc}{hint}") from exc
 
     def _query(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
         with self._lock:

@@ -163,6 +163,40 @@ def test_a_killed_writer_leaves_only_whole_episodes(tmp_path):
         assert [e.status for e in s.attempts_of("k", 40)] == ["pending"]
 
 
+def test_a_write_the_disk_refuses_is_store_unwritable_and_leaves_the_store_whole(tmp_path):
+    """Once no file of the writer may grow (RLIMIT_FSIZE 0, the full disk: SQLite's disk I/O
+    error), every write raises ``StoreUnwritable`` naming the store, nothing of it is stored,
+    and the store opens afterwards with what was committed before."""
+    path = tmp_path / "f.db"
+    code = textwrap.dedent(f"""
+        import resource
+        from ersac_hil.daemon.store import Store, StoreUnwritable, UpdateRecord
+        from protocol.zenoh import EpisodeResult
+        terms = {{"damage": 0.0, "body_acc_sq": 1.0, "arm_power": 1.0}}
+        s = Store({str(path)!r})
+        s.create_run("f", "r1", "bracing", 1, {{}})
+        def episode(i):
+            eid = f"f.{{i}}"
+            s.begin_attempt("f", eid, i, 0, (0.5,), (0.0,), (0.5,), i)
+            s.record_success(eid, EpisodeResult(eid, "bracing", "ok", terms, 1.0), 1.0, UpdateRecord(run_id="f", idx=i, episode_id=eid, theta_before=(0.5,), theta_after=(0.5,), cost=1.0, J=None, r=None, r_z=None, td_error=None, kappa=0.0, lr=0.1, state={{}}, stamp_s=0.0))
+        for i in range(3):
+            episode(i)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (0, 0))
+        for i in range(3, 6):  # each write refused, the connection still usable for the next
+            try:
+                episode(i)
+            except StoreUnwritable as exc:
+                print(exc)
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert len(lines) == 3 and all(line == f"store {path} cannot be written: disk I/O error; is the disk full?"
+                                   for line in lines), proc.stdout
+    with Store(path) as s:
+        assert [e.idx for e in s.attempts("f")] == [0, 1, 2] and [u.idx for u in s.updates("f")] == [0, 1, 2]
+
+
 _term = st.floats(0.0, 1e6, allow_nan=False, allow_infinity=False)
 _weight = st.floats(0.0, 1e3, allow_nan=False, allow_infinity=False)
 
