@@ -1,0 +1,101 @@
+"""The faults of a real deployment, each against the run without it: router, simulator, agent
+and daemon as separate processes (``helpers.faults.Rig``), a real SQLite store, Zenoh on
+loopback (the partition: across two network namespaces the test makes). After each fault the
+run must end by itself with exactly the ok episodes and updates of the uninterrupted run, bit
+for bit: none lost, none recorded twice, the interrupted episode run again.
+
+A few lock-step bracing episodes each; every test takes 20-60 s on an idle two-core machine,
+hence ``slow`` like the rest of tests/e2e.
+"""
+from __future__ import annotations
+
+import signal
+import subprocess
+
+import pytest
+
+from ersac_hil.daemon.service import EXIT_STORE
+from helpers.faults import (RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all, netns_unavailable,
+                            partition, reference_run, router_restart, tally)
+from helpers.processes import gone
+
+pytestmark = pytest.mark.slow
+
+SEED, EPISODES = 3, 6
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> History:
+    return reference_run(tmp_path_factory.mktemp("reference"), SEED, EPISODES, RUN_S)
+
+
+@pytest.fixture
+def rig(tmp_path):
+    rig = Rig(tmp_path, SEED, EPISODES)
+    yield rig
+    rig.close()
+    assert all(gone(pid) for pid in rig.pids)
+
+
+def _exact(reference: History, outcome: Outcome) -> None:
+    """The faulted run finished with the reference's episodes and updates, bit for bit; every
+    attempt the fault cut short was run again."""
+    h = outcome.history
+    assert h.status == "finished", outcome.output
+    assert tally(reference, h).exact, outcome.output
+    assert h.episodes == reference.episodes and h.updates == reference.updates
+    ok = {idx for idx, _, status in h.attempts if status == "ok"}
+    cut = [(idx, attempt) for idx, attempt, status in h.attempts if status not in ("ok", "pending")]
+    assert all(idx in ok for idx, _ in cut) and not any(s == "pending" for *_, s in h.attempts)
+
+
+def test_every_process_killed_at_once_mid_episode_resumes_exactly(reference, rig):
+    outcome = kill_all(rig)
+    during = outcome.during
+    assert during is not None and during.status == "running"  # the store opens, the run resumable
+    assert [s for *_, s in during.attempts].count("pending") == 1  # killed mid-episode
+    assert outcome.exits == (-signal.SIGKILL, 0), outcome.output
+    assert "(resumed at episode 3, 1 interrupted attempt(s))" in outcome.output
+    _exact(reference, outcome)
+    (interrupted,) = [(idx, a) for idx, a, s in outcome.history.attempts if s == "interrupted"]
+    assert (interrupted[0], interrupted[1] + 1, "ok") in outcome.history.attempts  # re-run, counted once
+
+
+def test_a_restarted_router_loses_nothing(reference, rig):
+    outcome = router_restart(rig)
+    assert outcome.exits == (0,), outcome.output  # one daemon start: the sessions reconnected
+    _exact(reference, outcome)
+
+
+def test_a_full_disk_stops_the_run_with_exit_5_and_a_restart_resumes(reference, rig):
+    outcome = disk_full(rig)
+    assert outcome.exits == (EXIT_STORE, 0), outcome.output
+    reason = [line for line in outcome.output.splitlines() if "cannot be written" in line]
+    assert len(reason) == 1 and "Traceback" not in outcome.output, outcome.output
+    assert str(rig.db) in reason[0] and "the run stays resumable" in reason[0]
+    during = outcome.during
+    assert during is not None and during.status == "running"  # it opens, nothing half-written
+    assert during.episodes == reference.episodes[:len(during.episodes)]
+    assert during.updates == reference.updates[:len(during.updates)] and len(during.episodes) >= 2
+    _exact(reference, outcome)
+
+
+@pytest.fixture
+def netns():
+    reason = netns_unavailable()
+    if reason:
+        pytest.skip(f"no network namespaces here: {reason}")
+    made = Netns()
+    yield made
+    made.close()
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert made.daemon not in listed and made.robot not in listed
+
+
+def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference, tmp_path, netns):
+    with Rig(tmp_path, SEED, EPISODES, netns) as rig:
+        outcome = partition(rig)
+    assert all(gone(pid) for pid in rig.pids)
+    assert outcome.exits == (0,), outcome.output
+    assert outcome.detected_s is not None, outcome.output  # the daemon saw the agent go
+    _exact(reference, outcome)
