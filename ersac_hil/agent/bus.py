@@ -43,7 +43,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -62,7 +62,7 @@ from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
 from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
-from protocol.can.fastpath import BurstNotifier
+from protocol.can.fastpath import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, BurstNotifier
 from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.objects import Scale
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
@@ -169,6 +169,8 @@ class AgentBus:
         self._last_commands = Commands()
         self._sdo_requests: dict[str, int] = {}
         self._sdo_answers: dict[str, int] = {}
+        self._sink: FrameSink | None = None
+        self._tap_listener: _Tap | None = None
 
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> "AgentBus":
@@ -444,6 +446,8 @@ class AgentBus:
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
+        if self._sink is not None:
+            self._sink(time.time(), frames, True)
         timing = self.timing
         if realtime:
             self.times.jitter_s.append(t0 - self._next_sync)  # type: ignore[operator]
@@ -498,6 +502,28 @@ class AgentBus:
         while time.perf_counter() < due:
             pass
 
+    # -- a recorder's tap on the agent's own bus (``ersac_hil.ros2``: MCAP episodes) ------------
+    def tap(self, sink: FrameSink | None) -> None:
+        """From now on also hand ``sink(timestamp, frames, sent)`` the frames of this bus: each
+        SYNC cycle's RPDOs and SYNC as sent (``(COB-ID, data)`` pairs, ``sent=True``) and every
+        frame received (``protocol.can.fastpath.Frame`` tuples), on the sending or receiving
+        thread, so it must only queue them. No second bus is opened; ``None`` removes it."""
+        notifier = self.net.notifier
+        self._sink = sink
+        if isinstance(notifier, BurstNotifier):
+            notifier.intercept(self._tpdos.take if sink is None else self._take_tapped)  # type: ignore[union-attr]
+            return
+        if self._tap_listener is not None:
+            notifier.remove_listener(self._tap_listener)
+            self._tap_listener = None
+        if sink is not None:
+            self._tap_listener = _Tap(sink)
+            notifier.add_listener(self._tap_listener)
+
+    def _take_tapped(self, frames: list, timestamp: float) -> list:
+        self._sink(timestamp, frames, False)  # type: ignore[misc]
+        return self._tpdos.take(frames, timestamp)  # type: ignore[union-attr]
+
     def _raise_if_bus_down(self) -> None:
         try:
             self.net.check()
@@ -525,6 +551,22 @@ class _ForeignFrames(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.arbitration_id not in self._known:
             self._note(foreign_frame(msg.arbitration_id, msg.is_error_frame, msg.is_remote_frame))
+
+
+FrameSink = Callable[[float, list, bool], None]
+"""``(timestamp, frames, sent)``: see :meth:`AgentBus.tap`."""
+
+
+class _Tap(can.Listener):
+    """Every received frame to a :data:`FrameSink` (the frame-by-frame receive path)."""
+
+    def __init__(self, sink: FrameSink) -> None:
+        self._sink = sink
+
+    def on_message_received(self, msg: can.Message) -> None:
+        flags = ((FLAG_EXTENDED if msg.is_extended_id else 0) | (FLAG_REMOTE if msg.is_remote_frame else 0)
+                 | (FLAG_ERROR if msg.is_error_frame else 0))
+        self._sink(msg.timestamp, [(msg.arbitration_id, flags, msg.dlc, msg.data)], False)
 
 
 @contextmanager

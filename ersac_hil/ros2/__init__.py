@@ -2,6 +2,6 @@
 MCAP episode files, with no ROS installed (``docs/ros2.md``).
 
 ``names`` (rmw_zenoh 1.x keys, liveliness tokens, attachments), ``messages`` (telemetry ->
-ROS 2 messages, CDR from rosbags' Jazzy typestore), ``recorder`` (MCAP files), ``bridge``
-(the publisher thread the agent's cycle hook feeds).
+ROS 2 messages, CDR from rosbags' Jazzy typestore), ``recorder`` (MCAP files, written by the ``writer``
+process), ``bridge`` (the live node), ``feed`` (the thread the agent's cycle and bus hooks feed).
 """

@@ -1,14 +1,14 @@
-"""What the agent's cycle hook feeds: a bounded queue and one publisher thread.
+"""What the agent's hooks feed: a bounded queue and one thread, and the MCAP writer process.
 
-``observe(tel)`` (the ``EpisodeRunner`` hook, on the SYNC loop's thread) only puts the sample
-into the queue; when the queue is full the sample is dropped and counted (``dropped``), so
-the control loop never waits for ROS 2 or the disk. The thread turns samples into ROS 2
-messages (``messages``) once and hands them to the live node (``bridge.Ros2Node``, every
-``decimation``-th cycle) and to the episode's MCAP file (``recorder``, every cycle). What only
-the file needs (the cycles not published live, the CAN frames) is encoded after the episode's
-last cycle, so that the control loop shares the interpreter with as little as possible.
-``begin``/``end`` frame an episode (``end`` waits until the thread has written everything of
-it and returns the MCAP file name).
+``observe(tel)`` (the ``EpisodeRunner`` hook, on the SYNC loop's thread) and ``frames`` (the
+agent bus's tap, ``AgentBus.tap``: the frames it sends and receives) only put into the queue;
+when the queue is full the item is dropped and counted (``dropped``; per episode in the MCAP
+file's metadata and a warning), so the control loop never waits for ROS 2 or the disk. The
+thread turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``,
+every ``decimation``-th cycle) and hands everything of an episode, in batches, to the MCAP
+writer process (``writer.RecorderProcess``), which encodes what is not encoded yet and writes
+the file. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the file
+appears under it when complete, ``recorder``).
 """
 from __future__ import annotations
 
@@ -17,16 +17,14 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from ersac_hil.agent.bus import EmcyEvent
 from ersac_hil.agent.telemetry import Telemetry
-from ersac_hil.agent.trace import CanRecorder
 from ersac_hil.ros2 import messages as m
 from ersac_hil.ros2.bridge import Ros2Node
 from ersac_hil.ros2.options import Ros2Options
-from ersac_hil.ros2.recorder import FrameTap, McapEpisodes
+from ersac_hil.ros2.writer import RecorderProcess
 from protocol.robot import RobotDescription
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 
@@ -34,6 +32,8 @@ log = logging.getLogger(__name__)
 
 DIAGNOSTICS_EVERY = 200
 """Cycles between two diagnostics when nothing changed (1 s at 200 Hz)."""
+BATCH = 512
+"""Records handed to the writer process at a time."""
 
 
 @dataclass
@@ -46,7 +46,7 @@ class _Episode:
     status: tuple[int, ...] = ()
     last_diagnostics: int = 0
     emcy_seen: int = 0
-    records: list = field(default_factory=list)  # (topic, CDR or a sample to encode, stamp) for the file
+    dropped0: int = 0
 
     def stamp(self, cycle: int) -> int:
         """The robot's time of a cycle: the episode's start plus SYNC periods."""
@@ -56,46 +56,49 @@ class _Episode:
 
 
 class Feed:
-    """``start()``, the hook ``observe``, per episode ``begin`` ... ``end``, ``stop()``.
+    """``start()``, the hooks ``observe`` and ``frames``, per episode ``begin`` ... ``end``, ``stop()``.
 
     Args:
         robot: the robot's name (diagnostic names ``<robot>/<device>``).
         node: the live ROS 2 node, or None. decimation: its joint-state/IMU rate divisor.
-        recorder: the MCAP episodes, or None.
+        recorder: the MCAP writer process, or None.
         emcy: ``since -> EMCY events from there`` (the agent bus's log), or None.
-        queue_size: samples the thread may lag behind.
-        tap: a CAN trace tap whose frames go into the MCAP files, or None.
+        queue_size: items (cycles, frame bursts) the thread may lag behind.
         description: the robot description (joint efforts from its torque constants and
             gears; None: the default description).
     """
 
     def __init__(self, robot: str, node: Ros2Node | None = None, decimation: int = 1,
-                 recorder: McapEpisodes | None = None,
+                 recorder: RecorderProcess | None = None,
                  emcy: Callable[[int], list[EmcyEvent]] | None = None, queue_size: int = 16384,
-                 tap: CanRecorder | None = None, description: RobotDescription | None = None) -> None:
+                 description: RobotDescription | None = None) -> None:
         self.robot, self.node, self.decimation, self.recorder = robot, node, decimation, recorder
-        self.tap = tap
         self._emcy = emcy
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self._thread: threading.Thread | None = None
         self._episode: _Episode | None = None
+        self._batch: list = []
         self._per_amp = m.torque_per_amp(description)
+        self._framing = False  # between begin and end: the tap's frames are queued
+        self._request: EpisodeRequest | None = None
         self.dropped = 0
-        self._dropped0 = 0
         self.published = 0
 
     @classmethod
     def for_agent(cls, config, session, bus) -> "Feed":  # noqa: ANN001 - AgentConfig, zenoh.Session, AgentBus
         """The feed of an agent service: its ROS 2 node (``config.ros2``) and MCAP files
-        (``config.record``, with a CAN tap on the agent's bus), started."""
+        (``config.record``, with the frames of the agent's own bus), started."""
         options = config.ros2 or Ros2Options()
         node = Ros2Node.declare(session, options, config.robot) if config.ros2 is not None else None
-        recorder = tap = None
+        recorder = None
         if config.record is not None:
-            recorder = McapEpisodes(config.record, options.namespace_for(config.robot), config.robot)
-            tap = CanRecorder(config.bus, config.record).start()
-        return cls(config.robot, node, options.decimation, recorder, bus.emcy_events,
-                   options.queue_size, tap, config.description).start()
+            recorder = RecorderProcess(config.record, options.namespace_for(config.robot), config.robot,
+                                       m.torque_per_amp(config.description).tolist())
+        feed = cls(config.robot, node, options.decimation, recorder, bus.emcy_events, options.queue_size,
+                   config.description).start()
+        if recorder is not None:
+            bus.tap(feed.frames)
+        return feed
 
     def start(self) -> "Feed":
         self._thread = threading.Thread(target=self._run, name="ros2-feed", daemon=True)
@@ -103,100 +106,105 @@ class Feed:
         return self
 
     def stop(self) -> None:
+        """Drain the queue, end the writer process (it finishes every file it was sent), withdraw
+        the node."""
+        self._framing = False
         if self._thread is not None:
             self._queue.put(None)
             self._thread.join(timeout=30.0)
             self._thread = None
-        if self.tap is not None:
-            self.tap.stop()
         if self.recorder is not None:
             self.recorder.close()
+            self.recorder = None
         if self.node is not None:
             self.node.close()
 
-    # -- the control loop's side (never blocks) ---------------------------------------------
+    # -- the control loop's and the bus's side (never blocks) ---------------------------------
     def observe(self, tel: Telemetry) -> None:
         try:
             self._queue.put_nowait(("cycle", tel))
         except queue.Full:
             self.dropped += 1
 
+    def frames(self, timestamp: float, frames: list, sent: bool) -> None:
+        """The agent bus's tap (``AgentBus.tap``): frames go to the episode's file."""
+        if self._framing:
+            try:
+                self._queue.put_nowait(("frames", timestamp, frames, sent))
+            except queue.Full:
+                self.dropped += 1
+
     # -- the agent service's side -------------------------------------------------------------
     def begin(self, request: EpisodeRequest, period_s: float, emcy_mark: int = 0) -> None:
-        start_ns = time.time_ns()
-        if self.recorder is not None:  # open before the tap hands it frames
-            self.recorder.begin(request.episode_id, start_ns)
-            self._dropped0 = self.dropped
-        if self.tap is not None:
-            self.tap.begin(request.episode_id, writer=FrameTap(self.recorder))
-        self._queue.put(("begin", request, start_ns, round(period_s * 1e9), emcy_mark))
+        self._request = request
+        self._queue.put(("begin", request, time.time_ns(), round(period_s * 1e9), emcy_mark, self.dropped))
+        self._framing = self.recorder is not None
 
     def end(self, result: EpisodeResult | None, fault: str = "") -> str:
-        """Finish the episode's messages; the MCAP file name (``""`` if none)."""
-        if self.tap is not None:
-            self.tap.end()
-        done: Future = Future()
-        self._queue.put(("end", result, fault, done))
-        return done.result(timeout=60.0)
+        """Close the episode; the name its MCAP file will have (``""`` without recording)."""
+        self._framing = False
+        self._queue.put(("end", result, fault))
+        recorder, request, self._request = self.recorder, self._request, None
+        return f"{request.episode_id}.mcap" if recorder is not None and recorder.alive and request else ""
 
     # -- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
         while True:
             item = self._queue.get()
             if item is None:
+                self._send()
                 return
             try:
                 getattr(self, "_on_" + item[0])(*item[1:])
             except Exception as exc:  # never let one bad sample stop the thread
                 log.exception("ROS 2 feed: %s", exc)
-                if item[0] == "end" and not item[-1].done():
-                    item[-1].set_result("")
 
-    def _put(self, topic: str, msg: object, stamp_ns: int, live: bool = True) -> None:
+    def _record(self, *record: object) -> None:
+        if self.recorder is not None:
+            self._batch.append(record)
+            if len(self._batch) >= BATCH:
+                self._send()
+
+    def _send(self) -> None:
+        if self._batch and self.recorder is not None:
+            self.recorder.send(self._batch)
+        self._batch = []
+
+    def _put(self, topic: str, msg: object, stamp_ns: int) -> None:
         data = m.serialize(msg, m.TOPICS[topic])
-        if live and self.node is not None:
+        if self.node is not None:
             self.node.put(topic, data)
             self.published += 1
-        if self.recorder is not None:
-            if self._episode is not None:
-                self._episode.records.append((topic, data, stamp_ns))
-            else:
-                self.recorder.write(topic, data, stamp_ns)
+        self._record("msg", topic, data, stamp_ns)
 
     def _log(self, stamp_ns: int, level: int, text: str) -> None:
-        if self.recorder is not None and self._episode is not None:
-            self._episode.records.append(("events", (level, text), stamp_ns))
+        self._record("log", stamp_ns, level, text)
 
-    def _flush(self, ep: _Episode) -> None:
-        """The episode's file: every record in order, encoding what was left for later."""
-        rec = self.recorder
-        for topic, data, stamp in ep.records:
-            if topic == "events":
-                rec.log(stamp, *data)  # type: ignore[union-attr]
-                continue
-            if isinstance(data, Telemetry):
-                data = m.serialize(m.joint_state(data, stamp, self._per_amp) if topic == "joint_states"
-                                   else m.imu(data, stamp), m.TOPICS[topic])
-            rec.write(topic, data, stamp)  # type: ignore[union-attr]
-        ep.records = []
-
-    def _on_begin(self, request: EpisodeRequest, start_ns: int, period_ns: int, emcy_mark: int) -> None:
-        self._episode = _Episode(request, start_ns, period_ns, emcy_seen=emcy_mark)
+    def _on_begin(self, request: EpisodeRequest, start_ns: int, period_ns: int, emcy_mark: int,
+                  dropped: int) -> None:
+        self._episode = _Episode(request, start_ns, period_ns, emcy_seen=emcy_mark, dropped0=dropped)
+        self._record("begin", request.episode_id, start_ns)
         self._log(start_ns, m.LOG_INFO, f"episode {request.episode_id} started: {request.task} "
                   f"theta={list(request.theta)} seed={request.seed}")
         self._put("episode", m.episode_status(self.robot, request, None), start_ns)
+
+    def _on_frames(self, timestamp: float, frames: list, sent: bool) -> None:
+        if self._episode is not None:
+            self._record("frames", timestamp, frames, sent)
 
     def _on_cycle(self, tel: Telemetry) -> None:
         ep = self._episode
         if ep is None:
             return
         stamp = ep.stamp(tel.cycle)
-        live = ep.index % self.decimation == 0
-        if live and self.node is not None:
-            self._put("joint_states", m.joint_state(tel, stamp, self._per_amp), stamp)
-            self._put("imu", m.imu(tel, stamp), stamp)
-        elif self.recorder is not None:  # the file's alone: encoded after the episode
-            ep.records += [("joint_states", tel, stamp), ("imu", tel, stamp)]
+        if self.node is not None and ep.index % self.decimation == 0:
+            for topic, msg in (("joint_states", m.joint_state(tel, stamp, self._per_amp)), ("imu", m.imu(tel, stamp))):
+                data = m.serialize(msg, m.TOPICS[topic])
+                self.node.put(topic, data)
+                self.published += 1
+                self._record("msg", topic, data, stamp)
+        else:  # the file's alone: the writer process encodes it
+            self._record("tel", stamp, tel)
         statuses = []
         if tel.status != ep.status or ep.index - ep.last_diagnostics >= DIAGNOSTICS_EVERY:
             statuses += m.device_statuses(self.robot, tel)
@@ -212,21 +220,24 @@ class Feed:
             self._put("diagnostics", m.diagnostics(stamp, statuses), stamp)
         ep.index += 1
 
-    def _on_end(self, result: EpisodeResult | None, fault: str, done: Future) -> None:
-        ep, name = self._episode, ""
-        if ep is not None:
-            stamp = max(time.time_ns(), ep.stamp(ep.first_cycle or 0) + ep.index * ep.period_ns)
-            if result is not None:
-                if not result.ok:
-                    self._put("diagnostics", m.diagnostics(stamp, [m.fault_status(self.robot, result)]), stamp)
-                self._put("episode", m.episode_status(self.robot, ep.request, result, fault), stamp)
-            status = result.status if result is not None else fault or "failed"
-            self._log(stamp, m.LOG_INFO if result is not None and result.ok else m.LOG_ERROR,
-                      f"episode {ep.request.episode_id} ended: {status}"
-                      + (f" ({result.detail})" if result is not None and result.detail else "")
-                      + (f", cost {result.total_cost:.6g}" if result is not None and result.total_cost is not None else ""))
-            if self.recorder is not None:
-                self._flush(ep)
-                name = self.recorder.end(dropped=self.dropped - self._dropped0)
+    def _on_end(self, result: EpisodeResult | None, fault: str) -> None:
+        ep = self._episode
+        if ep is None:
+            return
+        stamp = max(time.time_ns(), ep.stamp(ep.first_cycle or 0) + ep.index * ep.period_ns)
+        if result is not None:
+            if not result.ok:
+                self._put("diagnostics", m.diagnostics(stamp, [m.fault_status(self.robot, result)]), stamp)
+            self._put("episode", m.episode_status(self.robot, ep.request, result, fault), stamp)
+        status = result.status if result is not None else fault or "failed"
+        self._log(stamp, m.LOG_INFO if result is not None and result.ok else m.LOG_ERROR,
+                  f"episode {ep.request.episode_id} ended: {status}"
+                  + (f" ({result.detail})" if result is not None and result.detail else "")
+                  + (f", cost {result.total_cost:.6g}" if result is not None and result.total_cost is not None else ""))
+        dropped = self.dropped - ep.dropped0
+        if dropped:
+            log.warning("ROS 2 feed: %d samples or frame bursts of episode %s dropped (the feed fell a "
+                        "whole queue behind); the MCAP file's metadata 'feed' says so", dropped, ep.request.episode_id)
+        self._record("end", dropped)
+        self._send()
         self._episode = None
-        done.set_result(name)

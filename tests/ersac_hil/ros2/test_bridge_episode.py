@@ -66,13 +66,21 @@ def run(tmp_path_factory):
                     wait_until(lambda: sum(k.split("/")[3] == "joint_states" for k, _, _ in samples) >= n,
                                what="every joint state")
                     dropped = agent.feed.dropped
+                    # each file appears under its name when complete, while the agent runs on
+                    wait_until(lambda: all((record / r.mcap).is_file() for r in replies), what="the MCAP files")
+                    summaries = []
+                    for r in replies:
+                        with open(record / r.mcap, "rb") as f:
+                            summaries.append(make_reader(f).get_summary())
+                    writer = agent.feed.recorder._proc
+                assert writer.poll() == 0  # the agent's stop ended its writer process
                 wait_until(lambda: all(kind == zenoh.SampleKind.DELETE for kind in tokens.values()), what="tokens withdrawn")
                 sub.undeclare()
                 live.undeclare()
     finally:
         robot.close()
     return dict(samples=samples, tokens=tokens, replies=replies, telemetry=telemetry, record=record,
-                dropped=dropped)
+                dropped=dropped, summaries=summaries)
 
 
 def test_every_sample_is_on_a_documented_key_with_rosbags_hash_and_decodes(run):
@@ -156,7 +164,11 @@ def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
         for msg, tel in zip(states, telemetry):
             assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
         assert len(got["/lab/ubot1/imu"]) == len(telemetry)
-        assert len(got["/lab/ubot1/can"]) > 10 * len(telemetry)  # SYNC, RPDOs, TPDOs every cycle
+        # the agent's own bus: every SYNC it sent (one a cycle), its RPDOs and the TPDOs it received
+        frames = got["/lab/ubot1/can"]
+        assert sum(f.id == 0x80 for f in frames) == len(telemetry)
+        assert len(frames) > 10 * len(telemetry)
+        assert all(f.header.frame_id == "can" and 0 < f.dlc <= 8 for f in frames if f.id != 0x80)
         events = [e.message for e in got["/lab/ubot1/events"]]
         assert "started" in events[0] and "ended" in events[-1]
         with AnyReader([path]) as bag:
@@ -165,6 +177,36 @@ def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
             js = [bag.deserialize(raw, c.msgtype) for c, _, raw in
                   bag.messages(connections=[conns["/lab/ubot1/joint_states"]])]
             assert np.array_equal([m.position for m in js], [t.position for t in telemetry])
+
+
+def test_the_files_are_whole_under_their_names_and_nothing_is_left_half_written(run):
+    assert all(summary is not None and summary.statistics.message_count > 0 for summary in run["summaries"])
+    assert sorted(p.name for p in run["record"].iterdir()) == ["ep-r1.mcap", "ep-r2.mcap"]
+
+
+def test_a_feed_that_falls_behind_drops_counts_and_reports(tmp_path, caplog):
+    """A queue of 2 items cannot hold an episode's cycles and frames: what does not fit is
+    dropped, counted, logged and written into the file's metadata; the file is still whole."""
+    bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-drop")
+    robot = SimulatedRobot(bus)
+    try:
+        with EmbeddedRouter() as router, router.open_client() as session:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,),
+                                 ros2=Ros2Options(queue_size=2), record=str(tmp_path))
+            with AgentService(config) as agent:
+                wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                request = EpisodeRequest("ep-d1", "bracing", (0.5,), 5)
+                [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
+                           session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+                feed = agent.feed
+    finally:
+        robot.close()
+    with open(tmp_path / reply.mcap, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert int(meta["feed"]["dropped_samples"]) > 0
+    assert any("dropped" in r.getMessage() and "ep-d1" in r.getMessage() for r in caplog.records)
+    assert feed.dropped == int(meta["feed"]["dropped_samples"])
 
 
 def test_report_exports_a_run_with_every_episode_and_the_updates(run, tmp_path):

@@ -1,0 +1,131 @@
+"""The MCAP writer process of ``agent --record DIR``: the episodes' files are encoded and
+written by a child process of the agent, so that none of it shares the agent's interpreter
+(and its lock) with the SYNC loop.
+
+The agent (``RecorderProcess``, from the feed's thread) sends batches of records down the
+child's stdin, each a length-prefixed pickle of a list of tuples:
+
+* ``("open", directory, namespace, robot, torque_per_amp)`` (first, once);
+* ``("begin", episode_id, start_ns)``, ``("end", dropped_samples)``;
+* ``("msg", topic, cdr, stamp_ns)``: a message already in CDR;
+* ``("tel", stamp_ns, telemetry)``: one cycle's ``Telemetry`` (its joint state and IMU);
+* ``("log", stamp_ns, level, text)``: an event;
+* ``("frames", timestamp_s, frames, sent)``: CAN frames of one burst (``AgentBus.tap``).
+
+The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
+pipe) and ends at the end of its input: it finishes the episode it has open and exits, so the
+agent's ``close`` leaves no child. On SIGTERM it does the same.
+"""
+from __future__ import annotations
+
+import logging
+import pickle
+import signal
+import struct
+import subprocess
+import sys
+from typing import BinaryIO
+
+log = logging.getLogger(__name__)
+
+_LENGTH = struct.Struct("<I")
+CLOSE_WAIT_S = 60.0
+"""How long ``close`` waits for the child to write what it was sent."""
+
+
+class RecorderProcess:
+    """The agent's side: ``send(records) -> bool`` (False once the child is gone), ``close()``."""
+
+    def __init__(self, directory: str, namespace: str, robot: str, torque_per_amp: list[float]) -> None:
+        self._proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.ros2.writer"], stdin=subprocess.PIPE)
+        self.alive = True
+        self.send([("open", str(directory), namespace, robot, list(torque_per_amp))])
+
+    def send(self, records: list) -> bool:
+        if not self.alive:
+            return False
+        data = pickle.dumps(records, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            self._proc.stdin.write(_LENGTH.pack(len(data)) + data)  # type: ignore[union-attr]
+            self._proc.stdin.flush()  # type: ignore[union-attr]
+        except (OSError, ValueError) as exc:  # BrokenPipeError: the child is gone
+            self.alive = False
+            log.error("MCAP writer process gone (%s, status %s): recording stopped", exc, self._proc.poll())
+            return False
+        return True
+
+    def close(self, timeout_s: float = CLOSE_WAIT_S) -> int:
+        """End the child's input and wait until it has written everything; its exit status."""
+        try:
+            self._proc.stdin.close()  # type: ignore[union-attr]
+        except OSError:
+            pass
+        try:
+            return self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            log.error("MCAP writer process still writing after %.0f s: terminated", timeout_s)
+            self._proc.terminate()
+            return self._proc.wait(10.0)
+
+
+def _read(stream: BinaryIO, n: int) -> bytes | None:
+    data = b""
+    while len(data) < n:
+        chunk = stream.read(n - len(data))
+        if not chunk:
+            return None
+        data += chunk
+    return data
+
+
+def serve(stream: BinaryIO) -> None:
+    """Apply every batch of ``stream`` until its end (the child's main loop)."""
+    from ersac_hil.ros2 import messages as m
+    from ersac_hil.ros2.recorder import McapEpisodes
+
+    episodes: McapEpisodes | None = None
+    per_amp = None
+    try:
+        while (head := _read(stream, _LENGTH.size)) is not None:
+            body = _read(stream, _LENGTH.unpack(head)[0])
+            if body is None:
+                break
+            for record in pickle.loads(body):
+                kind = record[0]
+                if kind == "tel":
+                    _, stamp, tel = record
+                    episodes.write("joint_states", m.serialize(m.joint_state(tel, stamp, per_amp), m.JOINT_STATE), stamp)  # type: ignore[union-attr]
+                    episodes.write("imu", m.serialize(m.imu(tel, stamp), m.IMU), stamp)  # type: ignore[union-attr]
+                elif kind == "frames":
+                    episodes.frames(*record[1:])  # type: ignore[union-attr]
+                elif kind == "msg":
+                    episodes.write(*record[1:])  # type: ignore[union-attr]
+                elif kind == "log":
+                    episodes.log(*record[1:])  # type: ignore[union-attr]
+                elif kind == "begin":
+                    episodes.begin(*record[1:])  # type: ignore[union-attr]
+                elif kind == "end":
+                    episodes.end(*record[1:])  # type: ignore[union-attr]
+                elif kind == "open":
+                    import numpy as np
+                    _, directory, namespace, robot, amps = record
+                    episodes, per_amp = McapEpisodes(directory, namespace, robot), np.array(amps, dtype=np.float64)
+    finally:
+        if episodes is not None:
+            episodes.close()
+
+
+def main() -> int:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
+    try:
+        serve(sys.stdin.buffer)
+    except Exception as exc:  # noqa: BLE001 - one line, then the agent sees the pipe break
+        log.error("MCAP writer process failed: %s", exc)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
