@@ -40,7 +40,9 @@ Side by side with another checkout (an older main, its own venv or this one)::
 
 ``--agent-args "..."`` adds flags to this checkout's agents only, so ``--baseline .`` with
 ``--agent-args "--ros2 --record DIR"`` (and ``--busy-poll 0``, as the baseline side) measures
-the ROS 2 bridge and MCAP recording against the same stack without them.
+the ROS 2 bridge and MCAP recording against the same stack without them; repeated, each set
+runs in every round after the baseline (``--agent-args=--ros2 --agent-args "--ros2 --record
+DIR"``: off, bridge, bridge and recording, interleaved).
 
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
 agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's
@@ -269,17 +271,18 @@ def compare(args: argparse.Namespace) -> int:
         for backend in args.only or ("zenoh",):
             if backend == "virtual":
                 continue
-            new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here,
-                                                   busy_poll=args.busy_poll, agent_args=args.agent_args,
-                                                   description=robot))
-            report(backend, new)
-            if args.realtime:  # the physics follows the wall clock: episodes differ by design
-                continue
-            for task in new:
-                for a, b in zip(base[task], new[task]):
-                    if _measured(a) != _measured(b):
-                        same = False
-                        print(f"  DIFFERENT {task} episode: {a.cost_terms} vs {b.cost_terms}")
+            for variant in args.agent_args or [()]:  # each after the baseline, in the same round
+                new = _on(backend, lambda c: processes(c, args.episodes, args.realtime, here,
+                                                       busy_poll=args.busy_poll, agent_args=variant,
+                                                       description=robot))
+                report(backend + "".join(f" {a}" for a in variant), new)
+                if args.realtime:  # the physics follows the wall clock: episodes differ by design
+                    continue
+                for task in new:
+                    for a, b in zip(base[task], new[task]):
+                        if _measured(a) != _measured(b):
+                            same = False
+                            print(f"  DIFFERENT {task} episode: {a.cost_terms} vs {b.cost_terms}")
     verdict = ("not compared (real time: the physics follows the wall clock)" if args.realtime
                else "yes" if same else "NO")
     print(f"load average {os.getloadavg()[0]:.2f}; baseline {other} ({python}); "
@@ -301,8 +304,9 @@ def main() -> int:
                         help="CAN over Zenoh: this checkout's buses poll S seconds after each sample "
                              f"(default {busy_poll_for(1):g} in lock-step, the demo's for one pair here; "
                              "0 in real time, where it gained nothing; 0 = off)")
-    parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), default=(),
-                        help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"")
+    parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), action="append",
+                        help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"; repeatable: "
+                             "each set is run after the baseline in every round (\"\" for none)")
     robot = parser.add_mutually_exclusive_group()
     robot.add_argument("--drives", choices=tuple(DRIVES), default="ubot-board",
                        help="drive profile of simulator and agent (default ubot-board; cia402-cst: every "

@@ -89,13 +89,11 @@ class CanRecorder:
                     self._seen = max(self._seen, stamp)
                 self._lock.notify_all()
 
-    def begin(self, episode_id: str, writer: can.Listener | None = None) -> None:
-        """Start writing ``<episode_id>.<fmt>`` (an unfinished previous trace is closed), or
-        hand the episode's frames to ``writer`` instead (the MCAP recorder; ``end`` then
-        returns ``""``)."""
+    def begin(self, episode_id: str) -> None:
+        """Start writing ``<episode_id>.<fmt>`` (an unfinished previous trace is closed)."""
         self.end()
-        name = "" if writer is not None else f"{episode_id}.{self.fmt}"
-        writer = writer if writer is not None else can.Logger(str(self.directory / name))
+        name = f"{episode_id}.{self.fmt}"
+        writer = can.Logger(str(self.directory / name))
         with self._lock:
             self._writer, self._name, self._window = writer, name, (time.time(), math.inf)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import pytest
@@ -44,6 +44,11 @@ def test_demo_ros2_records_every_episode_and_the_run_exports(tmp_path):
         topics = _topics(out / "mcap" / a.mcap)
         assert len(topics["/ubot1/joint_states"]) == round(a.telemetry["n_cycles"])
         assert [m.hardware_id for m in topics["/ubot1/episode"]] == [a.episode_id] * 2
+        # CAN over Zenoh (the demo's direct link): the agent bus's tap hands on every SYNC it sent
+        # and the TPDOs it received, burst by burst
+        counts = Counter(f.id for f in topics["/ubot1/can"])
+        assert counts[0x80] == counts[0x1A0] == round(a.telemetry["n_cycles"])  # SYNCs sent, IMU TPDOs received
+        assert any(0x701 <= cob_id <= 0x77F for cob_id in counts)  # the nodes' heartbeats
     export = tmp_path / "run.mcap"
     r = subprocess.run([sys.executable, "-m", "ersac_hil.cli", "report", "latest", "--db", str(out / "demo.db"),
                         "--mcap", str(export), "--mcap-dir", str(out / "mcap")],

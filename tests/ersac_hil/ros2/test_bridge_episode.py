@@ -5,7 +5,7 @@ mcap + mcap-ros2-support and with rosbags."""
 from __future__ import annotations
 
 import uuid
-from collections import defaultdict
+from collections import Counter, defaultdict
 
 import numpy as np
 import pytest
@@ -166,7 +166,9 @@ def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
         assert len(got["/lab/ubot1/imu"]) == len(telemetry)
         # the agent's own bus: every SYNC it sent (one a cycle), its RPDOs and the TPDOs it received
         frames = got["/lab/ubot1/can"]
-        assert sum(f.id == 0x80 for f in frames) == len(telemetry)
+        counts = Counter(f.id for f in frames)
+        assert counts[0x80] == counts[0x1A0] == len(telemetry)  # SYNCs sent, IMU TPDOs received
+        assert any(0x701 <= cob_id <= 0x77F for cob_id in counts)  # the nodes' heartbeats
         assert len(frames) > 10 * len(telemetry)
         assert all(f.header.frame_id == "can" and 0 < f.dlc <= 8 for f in frames if f.id != 0x80)
         events = [e.message for e in got["/lab/ubot1/events"]]
