@@ -8,6 +8,7 @@ from .bound import vhgp_bound
 from .errors import CriticError, CriticInputError, FitError, NotFittedError
 from .gp import GP, GPHyperparameters, GPPrediction
 from .local import CriticConfig, CriticData, CriticEstimate, LocalCritic, LocalFit
+from .prior import CriticPrior
 from .vhgp import (
     VHGP,
     VHGPHyperparameters,
@@ -24,6 +25,7 @@ __all__ = [
     "CriticError",
     "CriticEstimate",
     "CriticInputError",
+    "CriticPrior",
     "FitError",
     "GPHyperparameters",
     "GPPrediction",

@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 
 from .errors import CriticInputError
 from .noise import LogLinearNoise, fit_log_linear, pseudo_count
+from .prior import CriticPrior
 from .vhgp import VHGP, VHGPHyperparameters, VHGPParams, VHGPPrediction, VHGPPredictionGradient
 
 MIN_FIT_POINTS = 3
@@ -109,7 +110,17 @@ class CriticConfig:
     `cold_every`-th also runs a cold fit (the two-stage recipe) and keeps whichever has the
     higher bound.  A warm chain can sit on a plateau forever: with the noise R -> 0 the
     gradients with respect to lambda and mu0 vanish (both are proportional to R); 15
-    points in 7-D reach that plateau on the first fit."""
+    points in 7-D reach that plateau on the first fit.
+
+    prior: a simulator's prediction of the cost (critic/prior.py), the residual model: the
+    VHGP fits the costs minus the simulated mean, the log-linear noise model the log variance
+    relative to the simulated one, and every prediction adds them back. With a prior, wide
+    selection fits take the log-linear noise model too (the simulator's shape is what the
+    prior is for). None (default): the critic sees the robot's episodes only.
+    prior_slope: with a prior, the slope prior std of the log-linear correction is
+    prior_slope / extent instead of noise_slope_prior / extent: the correction of a
+    simulator's noise shape, not the shape itself (with 10 / extent 15 points below the
+    simulated rise of the noise cancelled it: r~ 4x too small beyond them)."""
 
     epsilon: float
     min_neighbours: int = 10
@@ -128,6 +139,8 @@ class CriticConfig:
     noise_slope_prior: float = 10.0
     small_n_prior: bool = True
     clip_mean: bool = True
+    prior: CriticPrior | None = None
+    prior_slope: float = 2.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.epsilon) and self.epsilon > 0):
@@ -148,6 +161,10 @@ class CriticConfig:
             raise CriticInputError("noise_slope_prior must be finite and > 0")
         if not (isinstance(self.small_n_prior, bool) and isinstance(self.clip_mean, bool)):
             raise CriticInputError("small_n_prior and clip_mean must be booleans")
+        if not (math.isfinite(self.prior_slope) and self.prior_slope > 0):
+            raise CriticInputError("prior_slope must be finite and > 0")
+        if self.prior is not None and not isinstance(self.prior, CriticPrior):
+            raise CriticInputError("prior must be a CriticPrior or None")
         if self.cold_every < 0:
             raise CriticInputError("cold_every must be >= 0 (0: never)")
         if self.cold_iter < 0 or self.warm_iter < 0 or self.cache_size < 1:
@@ -155,7 +172,7 @@ class CriticConfig:
 
     def to_dict(self) -> dict[str, Any]:
         fixed = self.fixed_hyperparameters
-        return {
+        return {**({} if self.prior is None else {"prior": self.prior.to_dict(), "prior_slope": self.prior_slope}),
             "epsilon": self.epsilon,
             "min_neighbours": self.min_neighbours,
             "max_neighbours": self.max_neighbours,
@@ -187,6 +204,7 @@ class CriticConfig:
     def from_dict(cls, data: dict[str, Any]) -> "CriticConfig":
         data = dict(data)
         fixed = data.pop("fixed_hyperparameters", None)
+        prior = data.pop("prior", None)
         if fixed is not None:
             fixed = VHGPHyperparameters(
                 tuple(fixed["f_lengthscales"]),
@@ -195,7 +213,7 @@ class CriticConfig:
                 fixed["g_variance"],
                 fixed["g_mean"],
             )
-        return cls(fixed_hyperparameters=fixed, **data)
+        return cls(fixed_hyperparameters=fixed, prior=None if prior is None else CriticPrior.from_dict(prior), **data)
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,29 +239,43 @@ class CriticEstimate:
 @dataclass(frozen=True, eq=False)
 class LocalFit:
     """A VHGP fitted to the observations `ids` (sorted store indices, (n,)); with `noise`, the
-    noise process g (r~ and its slope) comes from that log-linear model instead."""
+    noise process g (r~ and its slope) comes from that log-linear model instead. With
+    `prior` (CriticConfig.prior) the VHGP was fitted to the costs minus the simulated mean,
+    which every prediction adds back; `costs` are the costs themselves."""
 
     ids: np.ndarray
     model: VHGP
     warm_started: bool = field(default=False)
     noise: LogLinearNoise | None = None
+    prior: CriticPrior | None = None
+    y: np.ndarray | None = None
+
+    @property
+    def costs(self) -> np.ndarray:
+        """The costs this fit was fitted to (n,)."""
+        return self.model.y if self.y is None else self.y
+
+    def _mean(self, Xa: np.ndarray, f_mean: np.ndarray) -> np.ndarray:
+        return f_mean if self.prior is None else f_mean + self.prior.mean_at(Xa)[0]
 
     def predict(self, Xs: np.ndarray) -> VHGPPrediction:
+        Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
         pred = self.model.predict(Xs)
-        if self.noise is None:
+        if self.noise is None and self.prior is None:
             return pred
-        g_mean, g_var = self.noise.predict(np.atleast_2d(np.asarray(Xs, dtype=float)))
-        return VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var)
+        g_mean, g_var = (pred.g_mean, pred.g_var) if self.noise is None else self.noise.predict(Xa)
+        return VHGPPrediction(self._mean(Xa, pred.f_mean), pred.f_var, g_mean, g_var)
 
     def predict_with_gradient(self, Xs: np.ndarray) -> tuple[VHGPPrediction, VHGPPredictionGradient]:
         pred, grad = self.model.predict_with_gradient(Xs)
-        if self.noise is None:
+        if self.noise is None and self.prior is None:
             return pred, grad
         Xa = np.atleast_2d(np.asarray(Xs, dtype=float))
-        g_mean, g_var = self.noise.predict(Xa)
-        dg_mean, dg_var = self.noise.gradient(Xa)
-        return (VHGPPrediction(pred.f_mean, pred.f_var, g_mean, g_var),
-                VHGPPredictionGradient(grad.f_mean, grad.f_var, dg_mean, dg_var))
+        g_mean, g_var = (pred.g_mean, pred.g_var) if self.noise is None else self.noise.predict(Xa)
+        dg_mean, dg_var = (grad.g_mean, grad.g_var) if self.noise is None else self.noise.gradient(Xa)
+        df = grad.f_mean if self.prior is None else grad.f_mean + self.prior.mean_at(Xa)[1]
+        return (VHGPPrediction(self._mean(Xa, pred.f_mean), pred.f_var, g_mean, g_var),
+                VHGPPredictionGradient(df, grad.f_var, dg_mean, dg_var))
 
     def estimate(self, x: np.ndarray, kappa: float = 0.0) -> CriticEstimate:
         """J~, r~, F~ and gradients at one point x (d,)."""
@@ -272,14 +304,15 @@ class LocalFit:
         """True if every observation this fit shares with `ids` still has the cost the fit
         saw (costs (N,) the current costs of all observations)."""
         common, mine, _ = np.intersect1d(self.ids, ids, assume_unique=True, return_indices=True)
-        return bool(np.array_equal(self.model.y[mine], costs[common]))
+        return bool(np.array_equal(self.costs[mine], costs[common]))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record that rebuilds this fit exactly: indices, the costs it was fitted
         to (they may change later by re-weighting) and the VHGP coordinates."""
         return {
             "ids": [int(i) for i in self.ids],
-            "y": [float(v) for v in self.model.y],
+            "y": [float(v) for v in self.costs],
+            **({} if self.prior is None else {"prior_mean": True}),
             "params": self.model.params.to_dict(),
         }
 
@@ -389,29 +422,59 @@ class LocalCritic:
             self._cache.move_to_end(key)
             return self._cache[key]
         X = self._data.points[ids]
-        y = self._data.costs[ids]
+        costs = self._data.costs[ids]
         warm = (
             warm_start is not None
             and warm_start.model.X.shape[1] == X.shape[1]
             and warm_start.compatible_with(ids, self._data.costs)
         )
-        model = self._new_model(X.shape[1])
-        if warm:
-            assert warm_start is not None
-            model.fit(X, y, warm_start=warm_start.warm_start_for(ids))
-            if also_cold:
-                cold = self._new_model(X.shape[1]).fit(X, y)
-                if cold.bound() > model.bound():
-                    model, warm = cold, False
-        else:
-            model.fit(X, y)
+        model, warm_used = self._fit_vhgp(ids, X, costs, warm_start if warm else None, also_cold)
+        with_prior = False
+        if self.config.prior is not None:  # the prior's mean where it explains the data better
+            model_p, warm_p = self._fit_vhgp(ids, X, self._residuals(X, costs, True), warm_start if warm else None,
+                                             also_cold)
+            if model_p.bound() > model.bound():
+                model, warm_used, with_prior = model_p, warm_p, True
         self.n_fits += 1
-        fit = LocalFit(ids, model, warm_started=warm, noise=self._noise(model) if local else None)
+        fit = self._local_fit(ids, model, costs, local, with_prior, warm_used)
         self._remember(key, fit)
         return fit
 
+    def _fit_vhgp(self, ids: np.ndarray, X: np.ndarray, y: np.ndarray, warm_start: LocalFit | None,
+                  also_cold: bool) -> tuple[VHGP, bool]:
+        model = self._new_model(X.shape[1])
+        if warm_start is None:
+            return model.fit(X, y), False
+        model.fit(X, y, warm_start=warm_start.warm_start_for(ids))
+        if also_cold:
+            cold = self._new_model(X.shape[1]).fit(X, y)
+            if cold.bound() > model.bound():
+                return cold, False
+        return model, True
+
+    def _residuals(self, X: np.ndarray, costs: np.ndarray, with_prior: bool) -> np.ndarray:
+        """What the VHGP fits: the costs, or with the prior the costs minus the simulated mean."""
+        prior = self.config.prior
+        return costs - prior.mean_at(X)[0] if with_prior and prior is not None else costs
+
+    def _local_fit(self, ids: np.ndarray, model: VHGP, costs: np.ndarray, local: bool, with_prior: bool,
+                   warm: bool = False) -> LocalFit:
+        prior = self.config.prior
+        noise = self._noise(model) if local or prior is not None else None
+        return LocalFit(ids, model, warm_started=warm, noise=noise, prior=prior if with_prior else None,
+                        y=None if prior is None else costs)
+
     def _noise(self, model: VHGP) -> LogLinearNoise | None:
-        """The log-linear noise model of a local fit (None with noise_model "vhgp")."""
+        """The log-linear noise model of a local fit (None with noise_model "vhgp"); with a
+        prior, the one relative to the prior's log variance if its (MAP) likelihood of the
+        residuals is higher than that of the model without it."""
+        plain = self._log_linear(model, None)
+        if plain is None or self.config.prior is None:
+            return plain
+        offset = self._log_linear(model, self.config.prior)
+        return offset if offset is not None and offset.nll < plain.nll else plain
+
+    def _log_linear(self, model: VHGP, prior: CriticPrior | None) -> LogLinearNoise | None:
         if self.config.noise_model != "loglinear":
             return None
         X = np.asarray(model.X)
@@ -428,8 +491,10 @@ class LocalCritic:
         # (measured on the lifting runs: r~ 0.8 where the costs were 4.5 or 38, docs/learner.md)
         y = np.asarray(model.y, dtype=float)
         return fit_log_linear(
-            X, e, v, max(support, 1e-3) * self.config.noise_slope_prior / extent,
+            X, e, v, max(support, 1e-3) * (self.config.noise_slope_prior if prior is None
+                                           else self.config.prior_slope) / extent,
             spread=float(np.var(y, ddof=1)), pseudo=pseudo_count(n, d) if self.config.small_n_prior else 0,
+            prior=prior,
         )
 
     def _new_model(self, d: int) -> VHGP:
@@ -465,8 +530,10 @@ class LocalCritic:
         y = np.asarray(record["y"], dtype=float) if "y" in record else self._data.costs[ids]
         if y.shape != ids.shape:
             raise CriticInputError("fit record: y and ids differ in length")
-        model = VHGP.from_params(self._data.points[ids], y, VHGPParams.from_dict(record["params"]))
-        fit = LocalFit(ids, model, noise=self._noise(model))
+        X = self._data.points[ids]
+        with_prior = bool(record.get("prior_mean", False))
+        model = VHGP.from_params(X, self._residuals(X, y, with_prior), VHGPParams.from_dict(record["params"]))
+        fit = self._local_fit(ids, model, y, True, with_prior)
         if np.array_equal(y, self._data.costs[ids]):
             self._remember(self._key(ids) + bytes([True]), fit)
         return fit

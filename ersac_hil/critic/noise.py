@@ -29,11 +29,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import minimize
 
 from .errors import FitError
+
+if TYPE_CHECKING:
+    from .prior import CriticPrior
 
 
 #: Cap of the posterior variance of g used in r~ = exp(g_mean/2 + g_var/4) and the predictive
@@ -45,13 +49,18 @@ G_VAR_MAX = 1.0
 
 @dataclass(frozen=True, eq=False)
 class LogLinearNoise:
-    """centre c (d,), coef p = [a, b] (d + 1,), cov C (d + 1, d + 1): posterior of (a, b)."""
+    """centre c (d,), coef p = [a, b] (d + 1,), cov C (d + 1, d + 1): posterior of (a, b).
+    With ``prior`` (a simulator's landscape, critic/prior.py) g(x) = o(x) + a + b'(x - c),
+    o = 2 log of the simulated std: the linear part corrects the simulator's noise."""
 
     centre: np.ndarray
     coef: np.ndarray
     cov: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
+    prior: CriticPrior | None = None
+    #: negative log posterior density of the residuals at the MAP (in their own units)
+    nll: float = math.nan
 
     def _z(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         inside = (Xs >= self.lo) & (Xs <= self.hi)
@@ -60,13 +69,19 @@ class LogLinearNoise:
     def predict(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(g_mean, g_var) at Xs (m, d), each (m,); g_var at most G_VAR_MAX."""
         Z, _ = self._z(Xs)
-        return Z @ self.coef, np.clip(np.einsum("ij,jk,ik->i", Z, self.cov, Z), 0.0, G_VAR_MAX)
+        g = Z @ self.coef
+        if self.prior is not None:
+            g = g + self.prior.log_var_at(Xs)[0]
+        return g, np.clip(np.einsum("ij,jk,ik->i", Z, self.cov, Z), 0.0, G_VAR_MAX)
 
     def gradient(self, Xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(d g_mean / dx, d g_var / dx) at Xs (m, d), each (m, d) (0 where clipped)."""
         Z, inside = self._z(Xs)
         capped = (np.einsum("ij,jk,ik->i", Z, self.cov, Z) >= G_VAR_MAX)[:, None]
-        return self.coef[1:] * inside, 2.0 * (Z @ self.cov[:, 1:]) * inside * ~capped
+        dg = self.coef[1:] * inside
+        if self.prior is not None:
+            dg = dg + self.prior.log_var_at(Xs)[1]
+        return dg, 2.0 * (Z @ self.cov[:, 1:]) * inside * ~capped
 
 
 def pseudo_count(n: int, d: int) -> int:
@@ -77,6 +92,7 @@ def pseudo_count(n: int, d: int) -> int:
 
 def fit_log_linear(
     X: np.ndarray, e: np.ndarray, v: np.ndarray, slope_prior_std: np.ndarray, spread: float = 0.0, pseudo: float = 0.0,
+    prior: CriticPrior | None = None,
 ) -> LogLinearNoise:
     """MAP and Laplace posterior of g = a + b'(x - c), c = mean of X.
 
@@ -86,11 +102,19 @@ def fit_log_linear(
     prior on exp(a) with `pseudo` degrees of freedom); they only inform a, and at the optimum
     exp(g_mean(c)) = exp(a) >= pseudo spread / (pseudo + n) whatever the residuals (each real
     residual's term in d nll / da is at most 1/2, and a's own prior is centred on the pooled
-    level, which is above that bound).  Raises FitError if no finite optimum is found."""
+    level, which is above that bound).  prior: g = o(x) + a + b'(x - c) with o the simulator's
+    log variance (the residuals and the pseudo-residuals are read relative to it).  Raises
+    FitError if no finite optimum is found."""
     n, d = X.shape
     c = X.mean(0)
     U = X - c
     prec = 1.0 / slope_prior_std**2
+    # relative to the simulator's log variance o(x): e_i e^(-o_i/2), v_i e^(-o_i) (exact)
+    jacobian = 0.0
+    if prior is not None:
+        o = prior.log_var_at(X)[0]
+        e, v, jacobian = e * np.exp(-0.5 * o), v * np.exp(-o), 0.5 * float(np.sum(o))
+        spread = spread * math.exp(-float(prior.log_var_at(c[None, :])[0][0]))
     e2 = e * e
     m0 = float(pseudo) if spread > 0 else 0.0
     S = float(spread)
@@ -100,14 +124,14 @@ def fit_log_linear(
     def nll(p: np.ndarray) -> tuple[float, np.ndarray]:
         with np.errstate(over="ignore"):
             s = np.exp(p[0] + U @ p[1:])
-            prior = m0 * S * math.exp(-p[0]) if m0 > 0 else 0.0
+            pseudo_term = m0 * S * math.exp(-p[0]) if m0 > 0 else 0.0
         tot = s + v
-        if not np.all(np.isfinite(tot)) or np.any(tot <= 0) or not math.isfinite(prior):
+        if not np.all(np.isfinite(tot)) or np.any(tot <= 0) or not math.isfinite(pseudo_term):
             return 1e300, np.zeros_like(p)
         val = 0.5 * float(np.sum(np.log(tot) + e2 / tot) + np.sum(prec * p[1:] ** 2) + prec_a * (p[0] - a0) ** 2)
-        val += 0.5 * (m0 * p[0] + prior)
+        val += 0.5 * (m0 * p[0] + pseudo_term)
         w = 0.5 * (s / tot) * (1.0 - e2 / tot)
-        da = w.sum() + prec_a * (p[0] - a0) + 0.5 * (m0 - prior)
+        da = w.sum() + prec_a * (p[0] - a0) + 0.5 * (m0 - pseudo_term)
         return val, np.concatenate([[da], U.T @ w + prec * p[1:]])
 
     level = float(np.sum(np.maximum(e2 - v, 0.0)) + m0 * S) / (n + m0)
@@ -128,4 +152,5 @@ def fit_log_linear(
     except np.linalg.LinAlgError as exc:  # pragma: no cover - H is positive definite
         raise FitError(f"log-linear noise model: singular information ({exc})") from exc
     extent = X.max(0) - X.min(0)
-    return LogLinearNoise(c, p, 0.5 * (cov + cov.T), X.min(0) - 0.5 * extent, X.max(0) + 0.5 * extent)
+    return LogLinearNoise(c, p, 0.5 * (cov + cov.T), X.min(0) - 0.5 * extent, X.max(0) + 0.5 * extent, prior,
+                          float(res.fun) + jacobian)

@@ -84,6 +84,9 @@ class Engine:
             max_step=settings.get("max_step", preset(settings.get("learner", LEGACY_LEARNER)).max_step),
             interleave_every=int(settings.get("interleave_every", 0)),
         )
+        if "prior" in settings:  # the simulator's landscape as the critic's prior mean
+            from ersac_hil.learner.prior import SimPrior
+            learner.set_critic_prior(SimPrior.from_dict(settings["prior"]).critic_prior())
         return cls(task, learner)
 
     @classmethod
@@ -209,6 +212,11 @@ class Engine:
             if bad.size:
                 raise ValueError(f"these weights make the cost of {bad.size} stored episode(s) "
                                  f"non-finite (first: episode {int(bad[0]) + 1})")
+
+    def drop_critic_prior(self) -> None:
+        """The critic sees the robot's episodes only from now on (a rejected prior)."""
+        if self._learner.critic_prior is not None:
+            self._learner.set_critic_prior(None)
 
     def adopt(self, theta: Sequence[float]) -> None:
         """Make ``theta`` the policy mean (no pending proposal allowed)."""

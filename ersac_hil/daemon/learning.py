@@ -110,7 +110,8 @@ class LearningRun:
     def _check_prior(self) -> None:
         """After the warm-up (every episode so far drawn around the prior's start): drop a
         simulator prior the robot disagrees with, i.e. go on from the task's default start
-        (a theta change with source ``prior rejected: <why>``)."""
+        (a theta change with source ``prior rejected: <why>``) with a critic that sees the
+        robot's episodes only."""
         from ersac_hil.learner.prior import SimPrior
 
         from .config import task_defaults
@@ -120,6 +121,7 @@ class LearningRun:
             return
         theta = task_defaults(self.run.task).theta0
         self.engine.adopt(theta)
+        self.engine.drop_critic_prior()
         self.store.record_change(self.run_id, "theta", list(theta), f"prior rejected: {why}", self.n_updates)
 
     def _final_selection(self) -> None:

@@ -169,7 +169,7 @@ def rebuild_engine(store: Store, run: RunRecord) -> Engine:
     theta = tuple(s["theta0"]) if last is None else last.theta_after
     if theta_change is not None and theta_change.n_updates >= n:
         theta = tuple(theta_change.value)
-    return Engine.restore(
+    engine = Engine.restore(
         run.task, s,
         observations=[(e.theta, e.cost_terms) for e in episodes],
         kappa=float(kappa_change.value) if kappa_change else float(s["kappa"]),
@@ -177,3 +177,6 @@ def rebuild_engine(store: Store, run: RunRecord) -> Engine:
         theta=theta,
         state=None if last is None else dict(last.state),
     )
+    if any(c.source.startswith("prior rejected") for c in store.changes(run.run_id, "theta")):
+        engine.drop_critic_prior()  # rejected after the state of the last update was stored
+    return engine

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from ..critic import CriticConfig, CriticError, CriticEstimate, FitError, LocalCritic, LocalFit
+from ..critic import CriticConfig, CriticError, CriticEstimate, CriticPrior, FitError, LocalCritic, LocalFit
 from ..critic._blas import single_threaded_blas
 from .costs import CostWeights, Observations, finite_real
 from .errors import (
@@ -224,6 +224,13 @@ class ERSAC:
         self._expect_obs = 0
         self._expect_digest: str | None = None
         self._fit_record: dict[str, Any] | None = None
+
+    def set_critic_prior(self, prior: CriticPrior | None) -> None:
+        """Give the critic a simulator's prediction as its prior mean (``CriticConfig.prior``,
+        the residual model) or take it away (None); every later fit is cold."""
+        self._critic = LocalCritic(self._observations, dataclasses.replace(self._critic.config, prior=prior))
+        self._last_fit = None
+        self._fit_record = None
 
     # ------------------------------------------------------------------ validation
     def _check_params(self, x: object, what: str) -> np.ndarray:
@@ -443,7 +450,7 @@ class ERSAC:
     def _update_fit(self, theta: np.ndarray) -> LocalFit:
         ids = self._critic.neighbourhood(theta)
         last = self._last_fit
-        if last is not None and np.array_equal(last.ids, ids) and np.array_equal(last.model.y, self._observations.costs[ids]):
+        if last is not None and np.array_equal(last.ids, ids) and np.array_equal(last.costs, self._observations.costs[ids]):
             return last
         every = self._critic.config.cold_every
         also_cold = every > 0 and self._n_updates % every == 0
@@ -460,7 +467,7 @@ class ERSAC:
                 fit = self._update_fit(theta)
                 J_t, r_t, _ = (float(v[0]) for v in fit.estimate_many(theta[None, :]))
                 if self._critic.config.clip_mean:  # the TD baseline within its costs' range
-                    J_t = float(np.clip(J_t, np.min(fit.model.y), np.max(fit.model.y)))
+                    J_t = float(np.clip(J_t, np.min(fit.costs), np.max(fit.costs)))
                 r_p = np.asarray(fit.estimate_many(X)[1], dtype=float)
                 if not (math.isfinite(J_t) and math.isfinite(r_t) and np.all(np.isfinite(r_p))) or r_t <= 0:
                     raise FitError(f"non-finite critic values J~ {J_t}, r~ {r_t}, r~(theta+z) {r_p.tolist()}")
@@ -520,8 +527,18 @@ class ERSAC:
         return self._observations.add(x, cost)
 
     def reweight(self, weights: CostWeights) -> None:
-        """New cost weights: every stored cost is recomputed from its terms."""
+        """New cost weights: every stored cost is recomputed from its terms. A critic prior
+        (a simulator's costs under the weights it was made with) is dropped when the weights
+        change."""
+        before = self._observations.weights
         self._observations.reweight(weights)
+        if self._critic.config.prior is not None and self._observations.weights.to_dict() != before.to_dict():
+            self.set_critic_prior(None)
+
+    @property
+    def critic_prior(self) -> CriticPrior | None:
+        """The critic's prior mean (``CriticConfig.prior``), if any."""
+        return self._critic.config.prior
 
     # ------------------------------------------------------------------ critic queries
     def critic_estimate(self, theta: object, kappa: float | None = None) -> CriticEstimate:

@@ -9,6 +9,10 @@ than ``Z`` standard errors plus ``MODEL_TOLERANCE`` of the mean, or a spread abo
 ``SPREAD_RATIO`` times the predicted one) rejects the prior, and the run goes on from the
 start it would have had without one (docs/learner.md, "Simulator prior"). A simulator that is
 wrong thus costs at most the warm-up episodes, which stay in the critic as robot data.
+
+With ``landscape`` (the simulated mean and std of every simulated policy of a 1-D task) the
+prior is also the critic's prior mean (:meth:`SimPrior.critic_prior`, the residual model of
+``ersac_hil.critic.prior``) for as long as the prior is kept.
 """
 from __future__ import annotations
 
@@ -18,6 +22,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from ersac_hil.critic.prior import CriticPrior
 
 __all__ = ["SimPrior", "Z", "MODEL_TOLERANCE", "SPREAD_RATIO", "from_groups"]
 
@@ -29,13 +35,16 @@ SPREAD_RATIO = 2.0
 @dataclass(frozen=True)
 class SimPrior:
     """``theta`` (d,) the simulated optimum for ``kappa``; ``mean``, ``std`` of one
-    episode's cost there (simulated); ``source`` what it was made from (one line)."""
+    episode's cost there (simulated); ``source`` what it was made from (one line);
+    ``landscape`` the simulated (theta, mean, std) of every policy (1-D tasks), the critic's
+    prior mean, or None."""
 
     theta: tuple[float, ...]
     mean: float
     std: float
     kappa: float
     source: str
+    landscape: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         if not (all(math.isfinite(t) for t in self.theta) and math.isfinite(self.mean)
@@ -56,14 +65,23 @@ class SimPrior:
             return False, f"robot spread {s:.4g} vs simulated {self.std:.4g} (at most {SPREAD_RATIO:g}x)"
         return True, f"robot mean {m:.4g}, spread {s:.4g} vs simulated {self.mean:.4g}, {self.std:.4g}"
 
+    def critic_prior(self) -> CriticPrior | None:
+        """The critic's prior mean of the landscape (None without one)."""
+        if self.landscape is None:
+            return None
+        t, m, s = zip(*self.landscape)
+        return CriticPrior.from_rows(t, m, s)
+
     def to_dict(self) -> dict[str, Any]:
+        extra = {} if self.landscape is None else {"landscape": [list(r) for r in self.landscape]}
         return {"theta": list(self.theta), "mean": self.mean, "std": self.std, "kappa": self.kappa,
-                "source": self.source}
+                "source": self.source, **extra}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> SimPrior:
+        land = d.get("landscape")
         return cls(tuple(float(t) for t in d["theta"]), float(d["mean"]), float(d["std"]), float(d["kappa"]),
-                   str(d["source"]))
+                   str(d["source"]), None if land is None else tuple(tuple(float(v) for v in r) for r in land))
 
 
 def from_groups(thetas: Sequence[Sequence[float]], means: Sequence[float], stds: Sequence[float],
@@ -73,4 +91,8 @@ def from_groups(thetas: Sequence[Sequence[float]], means: Sequence[float], stds:
     if F.size == 0 or not np.any(np.isfinite(F)):
         raise ValueError("no simulated policy with a finite mean and std")
     i = int(np.nanargmin(F))
-    return SimPrior(tuple(float(t) for t in thetas[i]), float(means[i]), float(stds[i]), float(kappa), source)
+    ok = np.isfinite(F)
+    land = None
+    if all(len(t) == 1 for t in thetas) and int(ok.sum()) >= 2:
+        land = tuple(sorted((float(thetas[j][0]), float(means[j]), float(stds[j])) for j in np.flatnonzero(ok)))
+    return SimPrior(tuple(float(t) for t in thetas[i]), float(means[i]), float(stds[i]), float(kappa), source, land)

@@ -1,6 +1,7 @@
 """``ersac-hil daemon --prior PATH``: the run starts from the simulated optimum for its kappa,
-and a prior the robot's warm-up episodes disagree with is dropped (the run goes on from the
-task's default start and recovers)."""
+with the simulated landscape as its critic's prior mean, and a prior the robot's warm-up
+episodes disagree with is dropped, critic prior included (the run goes on from the task's
+default start and recovers)."""
 from __future__ import annotations
 
 import json
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.daemon.config import ConfigError, DaemonConfig, merge
 from ersac_hil.daemon.prior import PriorError, load_prior
+from ersac_hil.daemon.runs import rebuild_engine
 from ersac_hil.daemon.store import Store
 from ersac_hil.learner.prior import SimPrior
 from ersac_hil.reproduce.views import history
@@ -78,6 +80,12 @@ def test_a_right_prior_starts_the_run_at_the_simulated_optimum(router, agent_fac
     assert not [c for c in h.changes if c[0] == "theta" and "prior" in str(c)]
     with Store(daemon.config.db, readonly=True) as store:
         assert not [c for c in store.changes(h.run.run_id) if c.source.startswith("prior rejected")]
+        states = [u.state for u in store.updates(h.run.run_id)]
+        engine = rebuild_engine(store, store.runs()[-1])
+    # the landscape is the critic's prior mean from the first update to the last, and after resume
+    assert h.run.settings["prior"]["landscape"][0] == [0.0, *true_cost(0.0)]
+    assert all(st["critic"]["prior"]["theta"] == list(GRID) for st in states)
+    assert engine._learner.critic_prior is not None
 
 
 def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router, agent_factory, daemon_factory,
@@ -94,7 +102,12 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     assert h.run.settings["theta0"] == [1.0]
     with Store(with_prior.config.db, readonly=True) as store:
         (rejected,) = [c for c in store.changes(h.run.run_id) if c.source.startswith("prior rejected")]
-    assert rejected.n_updates == 10 and rejected.value == [0.2]
+        assert rejected.n_updates == 10 and rejected.value == [0.2]
+        states = [u.state for u in store.updates(h.run.run_id)]
+        engine = rebuild_engine(store, store.runs()[-1])
+    # the critic's prior went with the rejection: robot episodes only from the 11th update on
+    assert "prior" in states[9]["critic"] and not any("prior" in st["critic"] for st in states[10:])
+    assert engine._learner.critic_prior is None
     # from there it learns like a run without the prior: no worse by more than the noise of
     # one run of 20 episodes (F2 in units of the synthetic cost: ~8-12 over the box)
     assert F2(float(h.final_policy[0])) <= F2(float(h0.final_policy[0])) + 0.5
