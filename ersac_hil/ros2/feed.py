@@ -1,10 +1,10 @@
 """What the agent's hooks feed: a bounded queue and one thread, and the MCAP writer process.
 
 ``observe(tel)`` (the ``EpisodeRunner`` hook, on the SYNC loop's thread) and ``frames`` (the
-agent bus's tap, ``AgentBus.tap``: the frames it sends and receives) only put into the queue;
-when the queue is full the item is dropped and counted (``dropped``; per episode in the MCAP
-file's metadata and a warning), so the control loop never waits for ROS 2 or the disk. The
-thread turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``,
+agent bus's tap, ``AgentBus.tap``: the frames it sends and receives) only append to a bounded
+queue, without a lock and without waking anyone (the thread looks every ``POLL_S``); when the
+queue is full the item is dropped and counted (``dropped``; per episode in the MCAP file's
+metadata and a warning), so the control loop never waits for ROS 2 or the disk. The thread turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``,
 every ``decimation``-th cycle) and hands everything of an episode, in batches, to the MCAP
 writer process (``writer.RecorderProcess``), which encodes what is not encoded yet and writes
 the file. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the file
@@ -13,9 +13,9 @@ appears under it when complete, ``recorder``).
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -34,6 +34,8 @@ DIAGNOSTICS_EVERY = 200
 """Cycles between two diagnostics when nothing changed (1 s at 200 Hz)."""
 BATCH = 512
 """Records handed to the writer process at a time."""
+POLL_S = 0.002
+"""How often the thread looks for new items during an episode."""
 
 
 @dataclass
@@ -74,7 +76,10 @@ class Feed:
                  description: RobotDescription | None = None) -> None:
         self.robot, self.node, self.decimation, self.recorder = robot, node, decimation, recorder
         self._emcy = emcy
-        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._items: deque = deque()
+        self._capacity = queue_size
+        self._wake = threading.Event()
+        self._drop_lock = threading.Lock()  # drops are counted from the SYNC loop's and the bus's threads
         self._thread: threading.Thread | None = None
         self._episode: _Episode | None = None
         self._batch: list = []
@@ -110,7 +115,7 @@ class Feed:
         the node."""
         self._framing = False
         if self._thread is not None:
-            self._queue.put(None)
+            self._control(None)
             self._thread.join(timeout=30.0)
             self._thread = None
         if self.recorder is not None:
@@ -120,44 +125,54 @@ class Feed:
             self.node.close()
 
     # -- the control loop's and the bus's side (never blocks) ---------------------------------
+    def _offer(self, item: tuple) -> None:
+        if len(self._items) < self._capacity:
+            self._items.append(item)
+        else:
+            with self._drop_lock:
+                self.dropped += 1
+
     def observe(self, tel: Telemetry) -> None:
-        try:
-            self._queue.put_nowait(("cycle", tel))
-        except queue.Full:
-            self.dropped += 1
+        self._offer(("cycle", tel))
 
     def frames(self, timestamp: float, frames: list, sent: bool) -> None:
         """The agent bus's tap (``AgentBus.tap``): frames go to the episode's file."""
         if self._framing:
-            try:
-                self._queue.put_nowait(("frames", timestamp, frames, sent))
-            except queue.Full:
-                self.dropped += 1
+            self._offer(("frames", timestamp, frames, sent))
+
+    def _control(self, item: tuple | None) -> None:
+        """Begin, end, stop: never dropped, and the thread is woken for them."""
+        self._items.append(item)
+        self._wake.set()
 
     # -- the agent service's side -------------------------------------------------------------
     def begin(self, request: EpisodeRequest, period_s: float, emcy_mark: int = 0) -> None:
         self._request = request
-        self._queue.put(("begin", request, time.time_ns(), round(period_s * 1e9), emcy_mark, self.dropped))
+        self._control(("begin", request, time.time_ns(), round(period_s * 1e9), emcy_mark, self.dropped))
         self._framing = self.recorder is not None
 
     def end(self, result: EpisodeResult | None, fault: str = "") -> str:
         """Close the episode; the name its MCAP file will have (``""`` without recording)."""
         self._framing = False
-        self._queue.put(("end", result, fault))
+        self._control(("end", result, fault))
         recorder, request, self._request = self.recorder, self._request, None
         return f"{request.episode_id}.mcap" if recorder is not None and recorder.alive and request else ""
 
     # -- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
+        items = self._items
         while True:
-            item = self._queue.get()
-            if item is None:
-                self._send()
-                return
-            try:
-                getattr(self, "_on_" + item[0])(*item[1:])
-            except Exception as exc:  # never let one bad sample stop the thread
-                log.exception("ROS 2 feed: %s", exc)
+            self._wake.wait(POLL_S if self._episode is not None else None)
+            self._wake.clear()
+            while items:
+                item = items.popleft()
+                if item is None:
+                    self._send()
+                    return
+                try:
+                    getattr(self, "_on_" + item[0])(*item[1:])
+                except Exception as exc:  # never let one bad sample stop the thread
+                    log.exception("ROS 2 feed: %s", exc)
 
     def _record(self, *record: object) -> None:
         if self.recorder is not None:

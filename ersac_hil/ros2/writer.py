@@ -12,13 +12,17 @@ child's stdin, each a length-prefixed pickle of a list of tuples:
 * ``("log", stamp_ns, level, text)``: an event;
 * ``("frames", timestamp_s, frames, sent)``: CAN frames of one burst (``AgentBus.tap``).
 
-The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
+The child runs at a lower priority (``NICE``): when the cores are busy, the control loop and the
+simulator go first and the writer catches up later (its input is the pipe, enlarged to
+``PIPE_BYTES``, behind the feed's bounded queue). The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
 pipe) and ends at the end of its input: it finishes the episode it has open and exits, so the
 agent's ``close`` leaves no child. On SIGTERM it does the same.
 """
 from __future__ import annotations
 
+import fcntl
 import logging
+import os
 import pickle
 import signal
 import struct
@@ -29,6 +33,10 @@ from typing import BinaryIO
 log = logging.getLogger(__name__)
 
 _LENGTH = struct.Struct("<I")
+NICE = 10
+"""The writer process's niceness above the agent's."""
+PIPE_BYTES = 1 << 20
+"""The pipe to the writer (Linux ``F_SETPIPE_SZ``, where allowed; else the system's default)."""
 CLOSE_WAIT_S = 60.0
 """How long ``close`` waits for the child to write what it was sent."""
 
@@ -38,6 +46,10 @@ class RecorderProcess:
 
     def __init__(self, directory: str, namespace: str, robot: str, torque_per_amp: list[float]) -> None:
         self._proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.ros2.writer"], stdin=subprocess.PIPE)
+        try:
+            fcntl.fcntl(self._proc.stdin, getattr(fcntl, "F_SETPIPE_SZ", 1031), PIPE_BYTES)  # type: ignore[arg-type]
+        except OSError:  # above /proc/sys/fs/pipe-max-size: the default stays
+            pass
         self.alive = True
         self.send([("open", str(directory), namespace, robot, list(torque_per_amp))])
 
@@ -116,6 +128,7 @@ def serve(stream: BinaryIO) -> None:
 
 
 def main() -> int:
+    os.nice(NICE)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s")

@@ -1,9 +1,10 @@
 """``ersac-hil demo --ros2``: the whole stack (router, simulator, agent with the ROS 2 bridge and
 MCAP recording, daemon) learns a few episodes; every episode the daemon stored names its MCAP
 file, the files open with mcap + mcap-ros2-support, and ``report --mcap`` exports the run with
-every episode."""
+every episode; a zenoh-python subscriber sees the ROS 2 node during it."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections import Counter, defaultdict
@@ -12,9 +13,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.typesys import Stores, get_typestore
 
 from ersac_hil.daemon.store import Store
-from helpers.processes import group_killed_on_exit
+from ersac_hil.ros2 import names
+from ersac_hil.zenoh_session import make_config, session_scope
+from helpers.processes import group_killed_on_exit, lines_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,13 +33,44 @@ def _topics(path: Path) -> dict[str, list]:
 
 
 def test_demo_ros2_records_every_episode_and_the_run_exports(tmp_path):
+    """During the demo a zenoh-python client on its router subscribes to the documented keys
+    and tokens: every sample decodes with rosbags' Jazzy typestore, its key's type hash is
+    rosbags' RIHS01 hash, the tokens parse, attachments count up by one with rising stamps."""
     out = tmp_path / "report"
+    samples, tokens = [], []
     with group_killed_on_exit(subprocess.Popen(
             [sys.executable, "-m", "ersac_hil.cli", "demo", "--out", str(out), "--episodes", "3", "--seed", "4",
              "--ros2"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             start_new_session=True)) as proc:
-        output, _ = proc.communicate(timeout=360)
+        head = lines_until(proc, r"demo: router (\S+),", 180)
+        endpoint = re.search(r"demo: router (\S+),", head[-1]).group(1)
+        with session_scope(make_config("client", connect=[endpoint])) as session:
+            live = session.liveliness().declare_subscriber(
+                "@ros2_lv/0/**", lambda s: tokens.append(str(s.key_expr)), history=True)
+            sub = session.declare_subscriber("0/**", lambda s: samples.append(
+                (str(s.key_expr), s.payload.to_bytes(), None if s.attachment is None else s.attachment.to_bytes())))
+            rest, _ = proc.communicate(timeout=360)
+            sub.undeclare()
+            live.undeclare()
+    output = "".join(head) + rest
     assert proc.returncode == 0, output
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    per_key = defaultdict(list)
+    for key, payload, attachment in samples:
+        domain, namespace, topic, dds, type_hash = key.split("/")
+        assert (domain, namespace) == ("0", "ubot1")
+        typename = names.ros_type(dds)
+        assert type_hash == jazzy.hash_rihs01(typename)
+        jazzy.deserialize_cdr(payload, typename)
+        per_key[key].append(names.parse_attachment(attachment))
+    assert {k.split("/")[2] for k in per_key} >= {"joint_states", "imu", "episode"}
+    for key, atts in per_key.items():
+        seqs, stamps = [a[0] for a in atts], [a[1] for a in atts]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), key
+        assert all(b > a for a, b in zip(stamps, stamps[1:])), key
+    parsed = [names.parse_token(t) for t in tokens]
+    assert {t.kind for t in parsed} == {"NN", "MP"}
+    assert {f"0{t.topic}/{t.type_name}/{t.type_hash}" for t in parsed if t.kind == "MP"} >= set(per_key)
     with Store(out / "demo.db", readonly=True) as store:
         (run,) = store.runs()
         attempts = [a for a in store.attempts(run.run_id) if a.status == "ok"]
