@@ -5,6 +5,8 @@
     .venv/bin/python bench/tasks.py learning --task lifting --seeds 1-20 --out bench-tasks
     .venv/bin/python bench/tasks.py peers --seeds 1-20 --pairs 2 --out bench-tasks
     .venv/bin/python bench/tasks.py surrogate --seeds 0-19
+    .venv/bin/python bench/tasks.py gaps --seeds 0-9 --out gaps.json
+    .venv/bin/python bench/tasks.py kappa0
 
 Every episode is an ``episode/run`` query to an agent of a simulator/agent pair started as in
 ``ersac-hil reproduce`` (``ersac_hil.demo.Stack``, one pair by default: the machine's cores
@@ -35,7 +37,18 @@ evaluation an independent episode with the scenario seed the daemon would give t
 episode of the same index), against the default learner's runs of the same seeds: F(theta, 2)
 regret of the recommended policy after 15, 30, 45 bracing episodes (against the landscape,
 interpolated). Prints a table and writes ``tasks.png``. (Lifting is not among the peers' tasks
-yet.)
+yet.) ``--with-prior``: also the default learner with ``--prior`` (the landscape as a JSON).
+
+``gaps``: the simulator prior on surrogate robots that differ from the simulator (``GAPS``:
+the landscape's damage rate moved in theta, the undamaged cost scaled; the simulator is the
+landscape), kappa 2, the ``select`` learner in-process as the daemon runs it (the prior's
+start, its consistency check after the warm-up, the final selection): episodes until F(theta,
+2) of the policy stays within 5 % of the robot's optimum, damage events while learning, for
+no prior, the prior's start only, and the start with the critic's prior mean. Resumable
+(``--out``'s ``.runs.jsonl``).
+
+``kappa0``: why kappa 0 runs end short of the mean's argmin (computed in seconds): how well
+the landscape's episodes locate the argmin, and the expected path of the paper's rule.
 """
 from __future__ import annotations
 
@@ -78,6 +91,7 @@ METHODS: dict[str, tuple[str, ...]] = {
     "default": (),
     "paper": ("--learner", "paper"),
     "guarded": ("--learner", "guarded"),
+    "prior": (),  # the default learner with --prior <the landscape> (prior_flags)
 }
 REPEATS = 3
 #: Cost of a damaged episode in the surrogate (the task's damage weight 10 x the broken arm's
@@ -135,6 +149,16 @@ def _stack(out: Path, stop: threading.Event, pairs: int, physics: str | None = N
                          None if physics is None else Path(physics), pairs=pairs)
 
 
+def prior_flags(out: Path, landscape: str | None) -> tuple[str, ...]:
+    """``--prior`` with the landscape (``landscape`` or ``LANDSCAPE``) as a JSON file in ``out``:
+    the simulator prior of the stack's own simulator (no reality gap)."""
+    land = Landscape.load(landscape)
+    path = out / "sim-landscape.json"
+    path.write_text(json.dumps({"rows": [{"theta": float(t), "mean": float(m), "std": float(s), "damage": float(d)}
+                                         for t, m, s, d in zip(land.theta, land.mean, land.std, land.damage)]}))
+    return ("--prior", str(path))
+
+
 def run_spec(method: str, task: str, kappa: float, seed: int, episodes: int,
              flags: Sequence[str] = ()) -> RunSpec:
     return RunSpec(f"{method}-{task}-k{kappa:g}-s{seed}", task, kappa, seed, episodes, (*METHODS.get(method, ()), *flags))
@@ -148,7 +172,8 @@ def learning(args: argparse.Namespace) -> dict:
     kappas = [float(k) for k in args.kappas.split(",")] if args.task == "bracing" else [0.0]
     episodes = args.episodes or (45 if args.task == "bracing" else 30)
     methods = args.methods.split(",")
-    specs = [run_spec(m, args.task, k, s, episodes) for m in methods for k in kappas for s in seeds]
+    flags = {m: prior_flags(out, args.landscape) if m == "prior" else () for m in methods}
+    specs = [run_spec(m, args.task, k, s, episodes, flags[m]) for m in methods for k in kappas for s in seeds]
     stack = _stack(out, stop, args.pairs, args.physics)
     trials = TrialStore(out / "trials.db")
     pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
@@ -228,14 +253,148 @@ def _lifting_table(method: str, rows: list, trials: TrialStore) -> dict:
     return {"success_per_seed": rates, "success_pooled": float(np.nanmean(rates))}
 
 
-def surrogate_cost(theta: float, land: Landscape, rng: np.random.Generator) -> float:
-    """One episode's cost from the landscape (see the module doc)."""
+def surrogate_episode(theta: float, land: Landscape, rng: np.random.Generator) -> tuple[float, bool]:
+    """One episode's cost from the landscape (see the module doc) and whether it damaged."""
     if theta < land.theta[0]:  # below 0.2 the body collapses onto the floor
         return float(np.interp(theta, [0.0, 0.15, land.theta[0]], [300.0, 290.0, land.mean[0]])
-                     + land.std[0] * rng.standard_normal())
+                     + land.std[0] * rng.standard_normal()), False
     m, s, p = (float(np.interp(theta, land.theta, a)) for a in (land.mean, land.std, land.damage))
     base = math.sqrt(max(s * s - DAMAGE_COST**2 * p * (1 - p), 16.0))
-    return m - DAMAGE_COST * p + base * rng.standard_normal() + DAMAGE_COST * float(rng.random() < p)
+    normal = base * rng.standard_normal()
+    damaged = bool(rng.random() < p)
+    return m - DAMAGE_COST * p + normal + DAMAGE_COST * float(damaged), damaged
+
+
+def surrogate_cost(theta: float, land: Landscape, rng: np.random.Generator) -> float:
+    return surrogate_episode(theta, land, rng)[0]
+
+
+#: Reality gaps of the surrogate: the robot is the landscape with its damage rate moved by
+#: ``shift`` in theta (cables that break at a lower, < 0, or higher, > 0, stiffness) and the
+#: undamaged part of the cost scaled by ``scale`` (another body, other motors); the simulator
+#: is the landscape itself. ``wrong-optimum``: the robot's kappa 2 optimum 0.25 above the
+#: simulated one.
+GAPS: dict[str, tuple[float, float]] = {"small": (-0.02, 1.02), "medium": (-0.05, 1.06), "wrong-optimum": (0.25, 1.0)}
+#: How a gap run uses the simulator: not at all, its optimum as the start (with the daemon's
+#: consistency check after the warm-up), or the start and the critic's prior mean.
+GAP_METHODS = ("no prior", "start only", "start + critic prior")
+#: "F(theta, 2) within 5 % of the robot's optimum".
+BAND = 0.05
+
+
+def robot_landscape(land: Landscape, shift: float, scale: float) -> Landscape:
+    """The landscape of a robot whose damage rate is ``land``'s moved by ``shift`` in theta and
+    whose undamaged cost is ``scale`` times ``land``'s (mean and spread), on ``land``'s grid."""
+    p = land.damage
+    base_mean = land.mean - DAMAGE_COST * p
+    base_var = np.maximum(land.std**2 - DAMAGE_COST**2 * p * (1 - p), 16.0)
+    pr = np.interp(land.theta - shift, land.theta, p)
+    return Landscape(land.theta, scale * base_mean + DAMAGE_COST * pr,
+                     np.sqrt(scale**2 * base_var + DAMAGE_COST**2 * pr * (1 - pr)), pr)
+
+
+def _gap_run(job: tuple[str, str, float, int, str | None]) -> dict:
+    """One learning run of the ``select`` learner on the robot of ``gap`` as the daemon makes
+    it (start, warm-up, the prior's consistency check, final selection): the policy mean after
+    every episode (the last one the final selection) and the damaged episodes."""
+    from threadpoolctl import threadpool_limits
+
+    from ersac_hil.daemon.config import task_defaults
+    from ersac_hil.learner import ERSAC
+    from ersac_hil.learner.prior import from_groups
+
+    gap, method, kappa, seed, path = job
+    sim = Landscape.load(path)
+    robot = robot_landscape(sim, *GAPS[gap])
+    d = task_defaults("bracing")
+    prior = from_groups([[t] for t in sim.theta], sim.mean, sim.std, kappa, "landscape")
+    theta0 = d.theta0 if method == "no prior" else prior.theta
+    with threadpool_limits(1, user_api="blas"):
+        L = ERSAC(theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed,
+                  interleave_every=1)
+        if method == "start + critic prior":
+            L.set_critic_prior(prior.critic_prior())
+        rng = np.random.default_rng(10_000 + seed)
+        path_theta, damaged, costs, rejected = [float(L.theta[0])], [], [], None
+        for i in range(d.episodes):
+            x = L.ask()
+            c, dmg = surrogate_episode(float(x[0]), robot, rng)
+            L.tell(x, c)
+            costs.append(c)
+            damaged.append(dmg)
+            if method != "no prior" and i + 1 == L.min_observations:
+                ok, why = prior.consistent(costs)
+                if not ok:
+                    rejected = why
+                    L.theta = d.theta0
+                    L.set_critic_prior(None)
+            path_theta.append(float(L.theta[0]))
+        if kappa > 0:
+            path_theta[-1] = float(L.select(kappa, pessimism=kappa).theta[0])
+    return {"gap": gap, "method": method, "kappa": kappa, "seed": seed, "theta": path_theta,
+            "damaged": damaged, "rejected": rejected}
+
+
+def settled_after(thetas: Sequence[float], land: Landscape, kappa: float) -> int | None:
+    """Episodes until F(theta, kappa) of the policy stays within ``BAND`` of the optimum's
+    to the end (None: not at the end)."""
+    best = land.F(land.optimum(kappa), kappa)
+    inside = [land.F(t, kappa) <= (1 + BAND) * best for t in thetas]
+    if not inside[-1]:
+        return None
+    n = len(inside)
+    while n > 0 and inside[n - 1]:
+        n -= 1
+    return n
+
+
+def gaps_bench(args: argparse.Namespace) -> None:
+    import multiprocessing as mp
+    seeds, kappa = parse_seeds(args.seeds), 2.0
+    gaps = args.gaps.split(",")
+    jobs = [(g, m, kappa, s, args.landscape) for s in seeds for g in gaps for m in GAP_METHODS]
+    t0, load0 = time.monotonic(), os.getloadavg()[0]
+    done: dict[tuple, dict] = {}
+    runs = Path(args.out).with_suffix(".runs.jsonl") if args.out else None
+    if runs is not None and runs.exists():  # resumable: a finished run is never run again
+        for line in runs.read_text().splitlines():
+            r = json.loads(line)
+            done[(r["gap"], r["method"], r["kappa"], r["seed"])] = r
+    todo = [j for j in jobs if j[:4] not in done]
+    with mp.get_context("fork").Pool(2) as pool:
+        for r in pool.imap_unordered(_gap_run, todo):
+            done[(r["gap"], r["method"], r["kappa"], r["seed"])] = r
+            if runs is not None:
+                with runs.open("a") as f:
+                    f.write(json.dumps(r) + "\n")
+            print(f"gaps: {r['gap']} / {r['method']} / seed {r['seed']} done ({len(done)}/{len(jobs)})", flush=True)
+    res = [done[j[:4]] for j in jobs]
+    sim = Landscape.load(args.landscape)
+    print(f"gaps: {len(jobs)} runs of {len(seeds)} seeds (45 episodes, kappa 2, the select learner), "
+          f"{(time.monotonic() - t0) / 60:.1f} min, load {load0:.1f} -> {os.getloadavg()[0]:.1f}")
+    print("| gap (damage shift, cost scale) | robot optimum (simulated) | method | episodes until F within 5 % "
+          "stays, median [IQR] (settled) | damage events while learning, mean | final within 0.1 | prior rejected |")
+    print("|---|---|---|---|---|---|---|")
+    table = []
+    for g in gaps:
+        robot = robot_landscape(sim, *GAPS[g])
+        opt = robot.optimum(kappa)
+        for m in GAP_METHODS:
+            rows = [r for r in res if r["gap"] == g and r["method"] == m]
+            n = [settled_after(r["theta"], robot, kappa) for r in rows]
+            e = np.array([len(r["theta"]) if v is None else v for v in n], dtype=float)  # unsettled: > budget
+            dmg = float(np.mean([sum(r["damaged"]) for r in rows]))
+            within = sum(abs(r["theta"][-1] - opt) <= TOLERANCE + 1e-9 for r in rows)
+            rej = sum(r["rejected"] is not None for r in rows)
+            med = np.median(e)
+            fmt = lambda v: ">45" if v > 45 else f"{v:.0f}"  # noqa: E731
+            print(f"| {g} ({GAPS[g][0]:+.2f}, x{GAPS[g][1]:.2f}) | {opt:.2f} ({sim.optimum(kappa):.2f}) | {m} | "
+                  f"{fmt(med)} [{fmt(np.percentile(e, 25))}-{fmt(np.percentile(e, 75))}] "
+                  f"({sum(v is not None for v in n)}/{len(rows)}) | {dmg:.2f} | {within}/{len(rows)} | {rej}/{len(rows)} |")
+            table.append({"gap": g, "method": m, "robot_optimum": opt, "episodes": e.tolist(), "damage": dmg,
+                          "within": int(within), "rejected": rej})
+    if args.out:
+        Path(args.out).write_text(json.dumps({"seeds": seeds, "gaps": GAPS, "table": table, "runs": res}, indent=1))
 
 
 def _surrogate_run(job: tuple[str, float, int, str | None]) -> tuple[str, float, int, float, float]:
@@ -278,6 +437,46 @@ def surrogate(args: argparse.Namespace) -> None:
             print(f"| {m} | {k:g} | {opt:.2f} | {int(np.sum(np.abs(final - opt) <= TOLERANCE + 1e-9))}/{len(final)} | "
                   f"{np.median(final):.2f} [{np.percentile(final, 25):.2f}-{np.percentile(final, 75):.2f}] | "
                   f"{np.mean([land.damage_at(t) for t in final]):.3f} ({land.damage_at(opt):.3f}) |")
+
+
+def kappa0_bench(args: argparse.Namespace) -> None:
+    """Why kappa 0 ends short of the mean's argmin: (1) how well the landscape's n episodes per
+    policy locate that argmin, (2) where the expected gradient step of the paper's rule takes
+    the policy from the start within the budget, and how far one run's noise spreads it."""
+    from ersac_hil.daemon.config import task_defaults
+
+    land, d = Landscape.load(args.landscape), task_defaults("bracing")
+    rng = np.random.default_rng(0)
+    draws = land.mean + land.std / math.sqrt(args.n) * rng.standard_normal((20_000, land.theta.size))
+    arg = land.theta[np.argmin(draws, axis=1)]
+    opt = land.optimum(0.0)
+    print(f"kappa 0: argmin of the landscape's mean {opt:.2f}; with {args.n} episodes per policy the argmin of "
+          f"the true mean is (normal approximation of each policy's mean):")
+    for t in np.unique(arg):
+        print(f"  {t:.2f}: {np.mean(arg == t):.3f}")
+    print(f"  within {TOLERANCE} of {opt:.2f}: {np.mean(np.abs(arg - opt) <= TOLERANCE + 1e-9):.3f}")
+    sigma, (lo, hi) = float(d.sigma[0]), d.lr_range
+    J = lambda t: float(np.interp(t, land.theta, land.mean))  # noqa: E731
+    theta, path, spread = float(d.theta0[0]), [], 0.0
+    updates = d.episodes - 10
+    for _ in range(updates):
+        slope = (J(theta + sigma) - J(theta - sigma)) / (2 * sigma)  # what +-sigma perturbations see
+        alpha = min(max(d.eta / float(np.interp(theta, land.theta, land.std)), lo), hi)
+        theta = min(max(theta - alpha * slope * sigma**2, 0.0), 1.0)
+        spread += (alpha * float(np.interp(theta, land.theta, land.std)) * sigma) ** 2
+        path.append(theta)
+    print(f"expected path of the paper's rule (eta {d.eta}, sigma {sigma}, eta / r~ in [{lo}, {hi}], r~ the true "
+          f"spread) from {float(d.theta0[0]):.2f} over the {updates} updates after the warm-up: "
+          + ", ".join(f"{path[i]:.3f}" for i in range(4, updates, 5)))
+    print(f"expected final theta {path[-1]:.3f} (target [{opt - TOLERANCE:.2f}, {opt + TOLERANCE:.2f}]); the noise "
+          f"of one run spreads it by ~{math.sqrt(spread):.3f} (sd of the sum of the updates' noise, no restoring drift)")
+    more = 0
+    while theta < opt - TOLERANCE and more < 10_000:
+        slope = (J(theta + sigma) - J(theta - sigma)) / (2 * sigma)
+        alpha = min(max(d.eta / float(np.interp(theta, land.theta, land.std)), lo), hi)
+        theta = min(max(theta - alpha * slope * sigma**2, 0.0), 1.0)
+        more += 1
+    print(f"updates the expected path needs to reach {opt - TOLERANCE:.2f}: {updates + more}")
 
 
 PEERS = ("CMA-ES", "MV-BO", "random")
@@ -341,7 +540,9 @@ def peers_bench(args: argparse.Namespace) -> None:
     trials = TrialStore(out / "trials.db")
     pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
     jobs = [(f"{m} s{s}", peer_job(m, "bracing", kappa, s, budget, trials, out, stop)) for m in PEERS for s in seeds]
-    specs = [run_spec("default", "bracing", kappa, s, budget) for s in seeds]
+    learners = ("default", "prior") if args.with_prior else ("default",)
+    flags = {"default": (), "prior": prior_flags(out, args.landscape) if args.with_prior else ()}
+    specs = [run_spec(m, "bracing", kappa, s, budget, flags[m]) for m in learners for s in seeds]
     t0, load0 = time.monotonic(), os.getloadavg()[0]
     try:
         pool.run(pool.learning_jobs(specs, out) + jobs)
@@ -353,10 +554,12 @@ def peers_bench(args: argparse.Namespace) -> None:
     opt = land.F(land.optimum(kappa), kappa)
     rows: dict[str, list[list[float]]] = {}
     for s in seeds:
-        h = history(run_spec("default", "bracing", kappa, s, budget).db(out))
-        db = run_spec("default", "bracing", kappa, s, budget).db(out)
-        rec = [float(h.policy_after(n)[0]) for n in CHECKPOINTS[:-1]] + [float(final_policy(db)[0])]
-        rows.setdefault("ERSAC (default)", []).append([land.F(t, kappa) - opt for t in rec])
+        for m in learners:
+            db = run_spec(m, "bracing", kappa, s, budget).db(out)
+            h = history(db)
+            rec = [float(h.policy_after(n)[0]) for n in CHECKPOINTS[:-1]] + [float(final_policy(db)[0])]
+            rows.setdefault("ERSAC (default)" if m == "default" else "ERSAC (default) + simulator prior", []).append(
+                [land.F(t, kappa) - opt for t in rec])
         for m in PEERS:
             traj = json.loads((out / "peers" / f"{m}-bracing-k{kappa:g}-s{s}.json").read_text())["recommended"]
             rows.setdefault(m, []).append([land.F(traj[n - 1][0], kappa) - opt for n in CHECKPOINTS])
@@ -409,7 +612,15 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--methods", default=",".join(SURROGATE))
     pp = sub.add_parser("peers", help="CMA-ES, MV-BO, random search against the default learner (bracing)")
     pp.add_argument("--seeds", default="1-20")
-    for p in (lp, sp, pp):
+    pp.add_argument("--with-prior", action="store_true", help="also the default learner with --prior (the landscape)")
+    gp = sub.add_parser("gaps", help="the simulator prior on surrogate robots that differ from the simulator")
+    gp.add_argument("--seeds", default="0-9")
+    gp.add_argument("--gaps", default=",".join(GAPS))
+    gp.add_argument("--out", default=None, help="JSON of every run")
+    kp = sub.add_parser("kappa0", help="why kappa 0 runs end short of the mean's argmin (computed, seconds)")
+    kp.add_argument("--n", type=int, default=100, help="episodes per policy behind the landscape")
+    kp.add_argument("--landscape", default=None, help="landscape.json of bench/bracing_sweep.py --out")
+    for p in (lp, sp, pp, gp):
         p.add_argument("--landscape", default=None, help="landscape.json of bench/bracing_sweep.py --out")
     for p in (lp, pp):
         p.add_argument("--out", default="bench-tasks")
@@ -420,7 +631,11 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [m for m in getattr(args, "methods", "").split(",") if m and m not in known]
     if unknown:
         ap.error(f"unknown method {unknown[0]!r}; known: {', '.join(known)}")
-    {"surrogate": surrogate, "learning": learning, "peers": peers_bench}[args.what](args)
+    bad_gap = [g for g in getattr(args, "gaps", "").split(",") if g and g not in GAPS]
+    if bad_gap:
+        ap.error(f"unknown gap {bad_gap[0]!r}; known: {', '.join(GAPS)}")
+    {"surrogate": surrogate, "learning": learning, "peers": peers_bench, "gaps": gaps_bench,
+     "kappa0": kappa0_bench}[args.what](args)
     return 0
 
 
