@@ -492,6 +492,14 @@ class Store:
         with self._lock:
             return self._db.execute(sql, params).fetchall()
 
+    def _rows_of_run(self, table: str, run_id: str, column: str, value: str | None) -> list[sqlite3.Row]:
+        """The rows of ``table`` (a table of this schema) of one run in insertion order; with a
+        ``value``, only those whose ``column`` holds it."""
+        if value is None:
+            return self._query(f"SELECT * FROM {table} WHERE run_id = ? ORDER BY seq", (run_id,))
+        return self._query(f"SELECT * FROM {table} WHERE run_id = ? AND {column} = ? ORDER BY seq",
+                           (run_id, value))
+
     @property
     def journal_mode(self) -> str:
         return str(self._query("PRAGMA journal_mode")[0][0])
@@ -638,12 +646,7 @@ class Store:
 
     def attempts(self, run_id: str, status: str | None = None) -> list[EpisodeRecord]:
         """Every attempt of the run in insertion order (optionally one status only)."""
-        if status is None:
-            rows = self._query("SELECT * FROM episodes WHERE run_id = ? ORDER BY seq", (run_id,))
-        else:
-            rows = self._query("SELECT * FROM episodes WHERE run_id = ? AND status = ? ORDER BY seq",
-                               (run_id, status))
-        return [_episode(r) for r in rows]
+        return [_episode(r) for r in self._rows_of_run("episodes", run_id, "status", status)]
 
     def ok_episodes(self, run_id: str) -> list[EpisodeRecord]:
         """The run's ok episodes in idx order (idx 0, 1, 2, ...; those of a batch whose
@@ -718,12 +721,8 @@ class Store:
             return self._insert_change(db, run_id, "weights", checked, source, None)
 
     def changes(self, run_id: str, kind: str | None = None) -> list[ChangeRecord]:
-        if kind is None:
-            rows = self._query("SELECT * FROM changes WHERE run_id = ? ORDER BY seq", (run_id,))
-        else:
-            rows = self._query("SELECT * FROM changes WHERE run_id = ? AND kind = ? ORDER BY seq",
-                               (run_id, kind))
-        return [_change(r) for r in rows]
+        """Every change of the run in insertion order (optionally one kind only)."""
+        return [_change(r) for r in self._rows_of_run("changes", run_id, "kind", kind)]
 
     def latest_change(self, run_id: str, kind: str) -> ChangeRecord | None:
         rows = self._query("SELECT * FROM changes WHERE run_id = ? AND kind = ? ORDER BY seq DESC LIMIT 1",
