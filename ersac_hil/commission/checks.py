@@ -10,7 +10,10 @@ Defects, one line each (``Defect.line``):
 * ``wrong PDO map``: a PDO's COB-ID, transmission type or mapping read from the node differs
   from its EDS (the agent takes its maps from the EDS, so it would decode garbage);
 * ``limit outside the drive's``: a limit of the description that the drive will not give
-  (its current limit, position limits, velocity or torque limit is tighter).
+  (its current limit, position limits, velocity or torque limit is tighter);
+* ``wrong encoder resolution``: a CiA 402 drive's increments per motor revolution (0x608F:1 /
+  0x608F:2) are not the axis's ``encoder_counts`` (every position, velocity and setpoint the
+  agent scales would be off by their ratio).
 
 The simulator's test bench is optional: a real robot has none, so it is never missing.
 """
@@ -21,7 +24,8 @@ from dataclasses import dataclass, field
 from ersac_hil.commission.scan import Identity, PdoMap
 from protocol.robot import RobotDescription
 
-KINDS = ("missing node", "extra node", "wrong device type", "wrong PDO map", "limit outside the drive's")
+KINDS = ("missing node", "extra node", "wrong device type", "wrong PDO map", "limit outside the drive's",
+         "wrong encoder resolution")
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,8 @@ class DriveLimits:
     torque: float | None = None
     velocity: float | None = None
     position: tuple[float, float] | None = None
+    encoder_counts: float | None = None
+    """A CiA 402 drive's encoder increments per motor revolution (0x608F:1 / 0x608F:2)."""
     source: dict[str, str] = field(default_factory=dict)
     """Which object each limit was read from (``{"current": "0x2034:2"}``)."""
 
@@ -111,7 +117,8 @@ def _pdo_defects(subject: str, want: tuple[PdoMap, ...], got: tuple[PdoMap, ...]
 
 
 def check_limits(description: RobotDescription, drives: dict[str, DriveLimits]) -> list[Defect]:
-    """A description limit beyond what the axis's drive gives."""
+    """A description limit beyond what the axis's drive gives; an encoder resolution that is
+    not the drive's."""
     defects = []
     for axis in description.axes:
         d = drives.get(axis.name)
@@ -125,6 +132,12 @@ def check_limits(description: RobotDescription, drives: dict[str, DriveLimits]) 
                 defects.append(Defect("limit outside the drive's", axis.name,
                                       f"{what} {mine:g} {unit} in the description, the drive gives "
                                       f"{theirs:g} {unit} ({src.get(what.split('_')[0], '?')})"))
+        if axis.encoder_counts is not None and d.encoder_counts is not None and \
+                abs(d.encoder_counts - axis.encoder_counts) > 1e-9 * axis.encoder_counts:
+            defects.append(Defect("wrong encoder resolution", axis.name,
+                                  f"encoder_counts {axis.encoder_counts} in the description, the drive counts "
+                                  f"{d.encoder_counts:g} increments per motor revolution "
+                                  f"({src.get('encoder_counts', '?')})"))
         if axis.position_limits is not None and d.position is not None:
             lo, hi = d.position
             if axis.position_limits.min < lo - 1e-9 or axis.position_limits.max > hi + 1e-9:

@@ -169,7 +169,9 @@ def _cia402_axis(axis: Axis, sdo, od) -> tuple[DriveLimits, str]:  # noqa: ANN00
             return None  # a software position limit at the object's full range: none set
         return raw
 
-    increments = axis.encoder_counts or read(P402.ENCODER_RESOLUTION, 1) or 1
+    counted, revolutions = read(P402.ENCODER_RESOLUTION, 1), read(P402.ENCODER_RESOLUTION, 2)
+    encoder = counted / revolutions if counted and revolutions else None
+    increments = axis.encoder_counts or encoder or 1
     scaling = DriveScaling(gear=axis.gear, increments=float(increments),
                            rated_current=(read(P402.RATED_CURRENT) or 0) / 1000.0,
                            rated_torque=(read(P402.RATED_TORQUE) or 0) / 1000.0)
@@ -182,8 +184,9 @@ def _cia402_axis(axis: Axis, sdo, od) -> tuple[DriveLimits, str]:  # noqa: ANN00
         axis.name,
         current=scaling.current(max_current) if max_current is not None and scaling.rated_current else None,
         torque=scaling.torque(max_torque) if max_torque is not None and scaling.rated_torque else None,
-        position=position,
-        source={"current": "0x6073 x 0x6075", "torque": "0x6072 x 0x6076 x gear", "position": "0x607D"})
+        position=position, encoder_counts=encoder,
+        source={"current": "0x6073 x 0x6075", "torque": "0x6072 x 0x6076 x gear", "position": "0x607D",
+                "encoder_counts": "0x608F:1 / 0x608F:2"})
     q, qd = read(P402.POSITION_ACTUAL), read(P402.VELOCITY_ACTUAL)
     status, volts = read(P402.STATUSWORD), read(P402.DC_LINK_VOLTAGE)
     return limits, (f"axis {axis.name:<15} position {_f(None if q is None else scaling.position(q))} rad  "

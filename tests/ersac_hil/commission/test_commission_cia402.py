@@ -90,3 +90,12 @@ def test_a_limit_outside_the_drives(robot, tmp_path, capsys):
     assert code == 1 and [d for d in lines if d.startswith("DEFECT")] == [
         "DEFECT limit outside the drive's: elbow_left: current_limit 15 A in the description, the drive gives "
         "12 A (0x6073 x 0x6075)"]
+
+
+def test_an_encoder_resolution_that_is_not_the_drives(robot, tmp_path, capsys):
+    path = wrong(tmp_path, "encoder_counts = 16384", "encoder_counts = 4096")  # the first axis: wheel_left
+    code, lines = run(robot[0], path, tmp_path, capsys)
+    assert code == 1 and [d for d in lines if d.startswith("DEFECT")] == [
+        "DEFECT wrong encoder resolution: wheel_left: encoder_counts 4096 in the description, the drive "
+        "counts 16384 increments per motor revolution (0x608F:1 / 0x608F:2)"]
+    assert not (tmp_path / "record.json").exists()
