@@ -163,6 +163,11 @@ def cia402_drive() -> Device:
     value, index = period.subs
     period = replace(period, subs=(value, (index[0], replace(index[1], dtype=DataType.INT8, low=-128,
                                                                    high=127), index[2])))
+    impedance = record(ix.IMPEDANCE, ("Kp", 50000), ("Kd", 5000))  # scaled per sub: a range check means something
+    kp, kd = impedance.subs
+    impedance = replace(impedance, subs=(
+        (kp[0], replace(kp[1], factor=cia402.KP_FACTOR, unit="N m/rad"), kp[2]),
+        (kd[0], replace(kd[1], factor=cia402.KD_FACTOR, unit="N m s/rad"), kd[2])))
     drive = Device("cia402_drive.eds", "ersac-hil CiA 402 servo drive", 0x0402,
                    "One-axis CiA 402 servo drive: cyclic synchronous position with the drive's own "
                    "impedance (0x2012), cyclic synchronous torque", ("axis",),
@@ -180,7 +185,7 @@ def cia402_drive() -> Device:
         record(ix.ENCODER_RESOLUTION, ("increments", cia402.ENCODER_INCREMENTS), ("motor revolutions", 1)),
         record(ix.GEAR_RATIO, ("motor revolutions", 1), ("shaft revolutions", 1)),
         period, var(ix.SUPPORTED_MODES, f"0x{cia402.SUPPORTED_MODES:08X}"),
-        record(ix.IMPEDANCE, ("Kp", 50000), ("Kd", 5000)),
+        impedance,
     ]
     cw, mode = (ix.CONTROLWORD, 0, 16), (ix.MODES_OF_OPERATION, 0, 8)
     sw = (ix.STATUSWORD, 0, 16)

@@ -18,6 +18,7 @@ from protocol.robot.load import SHIPPED_DIR, parse_description
 from protocol.robot.model import SHIPPED_EDS_DIR
 
 UBOT5 = tomllib.loads((SHIPPED_DIR / "ubot5.toml").read_text())
+UBOT5_CIA402 = tomllib.loads((SHIPPED_DIR / "ubot5-cia402.toml").read_text())
 CIA402_EDS = SHIPPED_EDS_DIR / "cia402_drive.eds"
 
 # the board robot's node table as it was written in code before the description existed
@@ -189,6 +190,22 @@ def test_an_impedance_range_beyond_the_drives_is_refused(axis, field, excess):
     data["axes"][axis][field] = [0.0, high + excess]
     message = _refusal(data)
     assert message.startswith(f"axes.{axis}.{field}: must lie inside [0, {high:g}] (the drive's 0x203")
+
+
+@settings(max_examples=30, deadline=None)
+@given(axis=st.sampled_from(["torso", "shoulder_left", "elbow_right"]),
+       field=st.sampled_from(["stiffness_range", "damping_range"]), excess=st.floats(1e-6, 1e4))
+def test_an_impedance_range_beyond_the_cia402_drives_is_refused(axis, field, excess):
+    """0x2012:1/2 of cia402_drive.eds carry their Factor: the range is checked in N m/rad and
+    N m s/rad (raw 0..5,000,000 at 1e-3 / 1e-4), not against raw counts."""
+    data = copy.deepcopy(UBOT5_CIA402)
+    high = {"stiffness_range": 5000.0, "damping_range": 500.0}[field]
+    parse_description(data)  # the shipped ranges lie inside
+    data["axes"][axis][field] = [0.0, high + excess]
+    message = _refusal(data)
+    assert message == (f"axes.{axis}.{field}: must lie inside [0, {high:g}] (the drive's "
+                       f"0x2012:{1 if field == 'stiffness_range' else 2} in cia402_drive.eds), "
+                       f"got [0, {high + excess:g}]")
 
 
 def test_other_refusals_name_their_field():
