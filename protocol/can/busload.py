@@ -3,8 +3,9 @@
 Frame length with worst-case bit stuffing (Davis, Burns, Bril & Lukkien 2007, eq. 1):
 ``C(n) = 47 + 8 n + floor((34 + 8 n - 1) / 4)`` bits for n data bytes, i.e. 55 bits for an
 empty frame (SYNC) and 135 bits for 8 bytes. The schedule per SYNC period is SYNC itself,
-every synchronous PDO (a PDO with transmission type N counts 1/N per period) and the
-heartbeats of every node and the agent, amortised over the period. EMCY and SDO traffic is
+every synchronous PDO (a PDO with transmission type N counts 1/N per period), every
+event-driven TPDO at its event timer (a CiA 402 drive's statusword and mode, 0x1800:5) and the
+heartbeats of every node and the agent, both amortised over the period. EMCY and SDO traffic is
 acyclic and not in the budget: the ceiling (50 % unless the robot description says otherwise)
 leaves the rest for it. Rate, bit rate, heartbeat period and nodes are the description's.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.can.pdo import PdoSpec, cyclic_pdos
+from protocol.can.pdo import PdoSpec, cyclic_pdos, timed_pdos
 from protocol.robot import Device, RobotDescription, default_description
 
 BUDGET_PERCENT = default_description().bus.load_budget_percent
@@ -68,15 +69,18 @@ class BusLoad:
 
     @property
     def max_rate_hz(self) -> float:
-        """The highest SYNC rate [Hz] this bit rate carries at 100 % (heartbeats held fixed)."""
-        per_second = sum(i.bits_per_cycle * self.rate_hz for i in self.items if i.name.startswith("heartbeat"))
-        per_cycle = sum(i.bits_per_cycle for i in self.items if not i.name.startswith("heartbeat"))
+        """The highest SYNC rate [Hz] this bit rate carries at 100 % (heartbeats and event timers
+        held fixed)."""
+        timed = [i.name.startswith("heartbeat") or " every " in i.name for i in self.items]
+        per_second = sum(i.bits_per_cycle * self.rate_hz for i, t in zip(self.items, timed) if t)
+        per_cycle = sum(i.bits_per_cycle for i, t in zip(self.items, timed) if not t)
         return max(self.bitrate - per_second, 0.0) / per_cycle
 
 
-def _pdo_item(p: PdoSpec) -> LoadItem:
-    return LoadItem(f"{p.device} {p.direction.upper()}{p.number} (0x{p.cob_id:03X})",
-                    p.length, 1.0 / p.transmission_type)
+def _pdo_item(p: PdoSpec, rate_hz: float) -> LoadItem:
+    per_cycle = 1.0 / p.transmission_type if p.synchronous else 1000.0 / p.event_timer_ms / rate_hz
+    timer = "" if p.synchronous else f" every {p.event_timer_ms} ms"
+    return LoadItem(f"{p.device} {p.direction.upper()}{p.number} (0x{p.cob_id:03X}){timer}", p.length, per_cycle)
 
 
 def bus_load(rate_hz: float | None = None, bitrate: int | None = None,
@@ -91,7 +95,7 @@ def bus_load(rate_hz: float | None = None, bitrate: int | None = None,
     if not rate_hz > 0 or bitrate <= 0:
         raise ValueError("rate and bitrate must be positive")
     items = [LoadItem("SYNC (0x080)", 0, 1.0)]
-    items += [_pdo_item(p) for p in cyclic_pdos(devices)]
+    items += [_pdo_item(p, rate_hz) for p in (*cyclic_pdos(devices), *timed_pdos(devices))]
     hb_per_cycle = 1000.0 / description.bus.heartbeat_period_ms / rate_hz
     items.append(LoadItem("heartbeat agent", 1, hb_per_cycle))
     items += [LoadItem(f"heartbeat {d.name}", 1, hb_per_cycle) for d in devices]

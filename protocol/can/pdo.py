@@ -43,6 +43,9 @@ class PdoSpec:
     transmission_type: int
     entries: tuple[PdoEntry, ...]
     eds: str = ""
+    event_timer_ms: int = 0
+    """An event-driven TPDO's (transmission type 254/255) event timer (0x18xx:5): it is sent
+    at least this often; 0: none, or a PDO that is not valid (COB-ID bit 31) or maps nothing."""
 
     @property
     def length(self) -> int:
@@ -103,9 +106,19 @@ def pdo_maps(dev: Device) -> tuple[PdoSpec, ...]:
                 index, subindex, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
                 target = _object(od, index, subindex)
                 entries.append(PdoEntry(index, subindex, bits, target.name))
+            cob_word, trans = _value(comm[1]), _value(comm[2])
+            timer = _value(comm[5]) if direction == "tpdo" and 5 in comm.subindices else 0
+            if cob_word & 0x8000_0000 or not entries or trans < 254:
+                timer = 0
             specs.append(PdoSpec(dev.name, dev.node_id, direction, n + 1,
-                                 _value(comm[1]) & 0x7FF, _value(comm[2]), tuple(entries), dev.eds))
+                                 cob_word & 0x7FF, trans, tuple(entries), dev.eds, timer))
     return tuple(specs)
+
+
+def timed_pdos(devices: tuple[Device, ...] = DEVICES) -> tuple[PdoSpec, ...]:
+    """Every event-driven TPDO with an event timer of the given devices (periodic traffic
+    beside the SYNC schedule: a CiA 402 drive's statusword and mode every 100 ms)."""
+    return tuple(p for d in devices for p in pdo_maps(d) if p.event_timer_ms > 0)
 
 
 def cyclic_pdos(devices: tuple[Device, ...] = DEVICES) -> tuple[PdoSpec, ...]:
