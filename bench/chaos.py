@@ -1,6 +1,6 @@
 """The faults of a real deployment, measured: each against the run without it.
 
-    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition] [--episodes 6] [--seed 3]
+    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition,rogue-can] [--episodes 6] [--seed 3]
 
 Router, simulator, agent and daemon as separate processes on loopback (the partition: across
 two network namespaces made for it, skipped where they cannot be made), a real SQLite store,
@@ -11,7 +11,9 @@ end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 * router-restart: the router SIGKILLed mid-episode and started again on its endpoint;
 * disk-full: no file of the daemon may grow (``RLIMIT_FSIZE`` 0) after two episodes; then a
   daemon with space started again;
-* partition: the daemon's veth down for 10 s mid-episode, then up.
+* partition: the daemon's veth down for 10 s mid-episode, then up;
+* rogue-can: a second SYNC producer on the robot's CAN bus mid-episode until an attempt ended as
+  a bus fault.
 
 Per fault: when it was detected (seconds from the fault to the daemon's first line other than
 progress, or its exit), when the run went on (seconds from the end of the fault - restart,

@@ -16,7 +16,7 @@ import pytest
 
 from ersac_hil.daemon.service import EXIT_STORE
 from helpers.faults import (RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all, netns_unavailable,
-                            partition, reference_run, router_restart, tally)
+                            partition, reference_run, rogue_can, router_restart, tally)
 from helpers.processes import gone
 
 pytestmark = pytest.mark.slow
@@ -98,4 +98,15 @@ def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference,
     assert all(gone(pid) for pid in rig.pids)
     assert outcome.exits == (0,), outcome.output
     assert outcome.detected_s is not None, outcome.output  # the daemon saw the agent go
+    _exact(reference, outcome)
+
+
+def test_a_rogue_can_node_faults_episodes_and_nothing_of_them_is_learned(reference, rig):
+    """A second SYNC producer on the robot's bus mid-run: the episodes it hits end as bus faults
+    (measured before: they came back ok with other costs), are run again once it is gone, and
+    the run learns exactly what it learns without it."""
+    outcome = rogue_can(rig)
+    assert outcome.exits == (0,), outcome.output
+    assert "fault_simulator (SYNC cycle" in outcome.output
+    assert any(status == "fault_simulator" for *_, status in outcome.history.attempts)
     _exact(reference, outcome)

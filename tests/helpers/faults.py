@@ -23,7 +23,8 @@ from ersac_hil.daemon.store import Store
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import free_tcp_port
 
-__all__ = ["History", "Netns", "Rig", "Tally", "history", "netns_unavailable", "tally", "wait"]
+__all__ = ["FAULTS", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally", "disk_full", "history", "kill_all",
+           "netns_unavailable", "partition", "reference_run", "rogue_can", "router_restart", "tally", "wait"]
 
 ROBOT = "ubot1"
 TASK = "bracing"
@@ -204,6 +205,8 @@ class Rig:
         self.logs.mkdir(parents=True, exist_ok=True)
         host = Netns.ROBOT_IP if netns else "127.0.0.1"
         self.endpoint = f"tcp/{host}:{free_tcp_port()}"
+        self.can_channel = ""
+        """The simulator/agent CAN-over-Zenoh channel (``name@endpoint`` of the simulator's listener)."""
         self.children: dict[str, Child] = {}
         self.pids: list[int] = []
         """Every child process ever started."""
@@ -243,13 +246,14 @@ class Rig:
         """Simulator, then the agent, its CAN over Zenoh on a direct link to the simulator."""
         listen = f"tcp/127.0.0.1:{free_tcp_port()}"
         bus = f"ersac-{ROBOT}"
+        self.can_channel = f"{bus}@{listen}"
         sim = self._launch("sim", cli_argv("sim", "--bus-interface", "zenoh", "--bus-channel", bus,
                                            "--bus-kwargs", f"listen={listen}", "--seed", str(self.seed)),
                            self._robot_ns())
         sim.wait_for(r"^simulator: \d+ nodes", START_S)
         insecure = ["--insecure"] if self.netns else []
         self._launch("agent", cli_argv("agent", "--robot", ROBOT, "--bus-interface", "zenoh", "--bus-channel",
-                                       f"{bus}@{listen}", "--zenoh", self.endpoint, *insecure),
+                                       self.can_channel, "--zenoh", self.endpoint, *insecure),
                      self._robot_ns()).wait_for(r"^agent ready: ", START_S)
 
     def start_daemon(self) -> Child:
@@ -408,8 +412,38 @@ def partition(rig: Rig) -> Outcome:
     return _finish(rig, "partition", None, (), t_fault, time.time())
 
 
+def rogue_can(rig: Rig) -> Outcome:
+    """A rogue node on the robot's CAN bus mid-episode (its own bus on the simulator's listener)
+    producing a frame the robot has one producer of: a foreign SYNC every 20 ms until an attempt
+    ended otherwise than ok (the agent called it a bus fault), then gone."""
+    import can
+
+    from protocol.can import cobid
+
+    rig.start()
+    _mid_episode(rig, 2)
+    rogue = can.Bus(interface="zenoh", channel=rig.can_channel)
+    sync = can.Message(arbitration_id=cobid.SYNC, data=b"", is_extended_id=False)
+
+    def faulted() -> bool:
+        h = history(rig.db)
+        return bool(h and any(status not in ("ok", "pending") for *_, status in h.attempts))
+    try:
+        t_fault = time.monotonic()
+        deadline = t_fault + RUN_S
+        while not faulted():
+            if time.monotonic() > deadline:
+                raise TimeoutError("no attempt ended as a bus fault under a rogue SYNC producer")
+            rogue.send(sync)
+            time.sleep(0.02)
+    finally:
+        rogue.shutdown()
+    return _finish(rig, "rogue-can", None, (), t_fault, time.time())
+
+
 FAULTS: dict[str, Callable[[Rig], Outcome]] = {
-    "kill-all": kill_all, "router-restart": router_restart, "disk-full": disk_full, "partition": partition}
+    "kill-all": kill_all, "router-restart": router_restart, "disk-full": disk_full, "partition": partition,
+    "rogue-can": rogue_can}
 
 
 def reference_run(work: Path, seed: int, episodes: int, timeout_s: float) -> History:
