@@ -281,7 +281,7 @@ class Cia402Bus(AgentBus):
                 if not node.is_op_mode_supported(mode):
                     raise DriveFault(f"{name}: 0x6502 does not list {mode.lower()}")
                 if node.state in ("FAULT", "FAULT REACTION ACTIVE"):
-                    node.reset_from_fault()
+                    self._reset_fault(name, node)
                 if node.state != "SWITCH ON DISABLED":
                     node.state = "SWITCH ON DISABLED"
                 node.op_mode = mode  # logs its own timeouts: the read-back decides
@@ -295,6 +295,20 @@ class Cia402Bus(AgentBus):
                 raise DriveFault(f"{name}: {exc}") from exc
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 raise DriveFault(f"{name}: SDO {exc}") from exc
+
+    @staticmethod
+    def _reset_fault(name: str, node: BaseNode402) -> None:
+        """``BaseNode402.reset_from_fault`` (it waits out its own timeout, a known FIXME, then
+        walks to OPERATION ENABLED); a drive still in FAULT is a ``DriveFault`` naming its error
+        code (0x603F), e.g. a broken cable's 0xFF10, which no reset clears."""
+        try:
+            node.reset_from_fault()
+        except RuntimeError:  # its transitions timed out: the statusword says why below
+            pass
+        if node.is_faulted():
+            with _sdo_errors(name, Index.ERROR_CODE, 0, None):
+                code = int(node.sdo[Index.ERROR_CODE].raw)
+            raise DriveFault(f"{name}: still in FAULT after a fault reset (error code 0x{code:04X}, 0x603F)")
 
     def disable_drives(self) -> None:
         """Every drive to SWITCH ON DISABLED (torque off)."""

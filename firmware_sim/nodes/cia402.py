@@ -6,7 +6,8 @@ The power state machine (CiA 402 figure 13): NOT READY TO SWITCH ON -> SWITCH ON
 boot; shutdown, switch on, enable operation, disable operation, disable voltage, quick stop from
 the controlword (0x6040, event-driven RPDO1 or SDO); FAULT on the loss of the agent's heartbeat
 (EMCY 0x8130 from the node's consumer watchdog) and on the plant's faults (a broken elbow cable:
-EMCY 0xFF10, not resettable); fault reset on the rising edge of bit 7 -> SWITCH ON DISABLED.
+EMCY 0xFF10, not resettable: its code stays in 0x603F whatever faults follow); fault reset on
+the rising edge of bit 7 -> SWITCH ON DISABLED.
 Leaving NMT OPERATIONAL while enabled disables the drive (SWITCH ON DISABLED). The axis produces
 torque in OPERATION ENABLED, and in QUICK STOP ACTIVE while it brakes; in every other state none.
 
@@ -263,8 +264,8 @@ class DriveApp(DeviceApp):
 
     def fault(self, code: EmcyCode) -> None:
         """Fault reaction: torque off, FAULT (the caller sends the EMCY)."""
-        self.error = code
         self.broken = self.broken or code == EmcyCode.CABLE_BROKEN
+        self.error = EmcyCode.CABLE_BROKEN if self.broken else code  # why a reset will not clear it
         self.state = State.FAULT
         self.axis.set_enabled(False)
         self._publish()

@@ -173,6 +173,33 @@ def test_heartbeat_loss_faults_with_emcy_and_fault_reset(bench):
     assert node.sdo[Index.ERROR_CODE].raw == 0
 
 
+def test_a_broken_cable_stays_the_error_through_a_sync_driven_heartbeat_loss_and_no_reset_clears_it(bench):
+    """What made a fault reset time out after a heartbeat loss with SYNCs flowing: the limp arm
+    broke its cable first (EMCY 0xFF10, not resettable) and the heartbeat fault that followed
+    overwrote 0x603F. The cable's code stays; the reset leaves the drive in FAULT."""
+    (node,) = bench.start("elbow_left")
+    node.sdo[0x1016][1].raw = object_dictionary(DRIVES[0])[0x1016][1].default  # the EDS's 250 ms
+    node.op_mode = CSP
+    node.state = "OPERATION ENABLED"
+    drive = bench.robot.nodes["elbow_left"]
+    drive.app.on_failure(EmcyCode.CABLE_BROKEN)  # what the plant's failure event does (SimulatedRobot._step)
+    drive.emergency(EmcyCode.CABLE_BROKEN)
+    assert node.emcy.wait(EmcyCode.CABLE_BROKEN, timeout=PATIENCE_S) is not None
+    bench.heartbeat.stop()
+    for _ in range(400):  # SYNC-driven: the silence counts in SYNC periods (250 ms = 50)
+        bench.cycle(node)
+        if any(e.code == EmcyCode.HEARTBEAT_LOST for e in node.emcy.log):
+            break
+    assert [e.code for e in node.emcy.log][-2:] == [EmcyCode.CABLE_BROKEN, EmcyCode.HEARTBEAT_LOST]
+    assert node.sdo[Index.ERROR_CODE].raw == EmcyCode.CABLE_BROKEN
+    bench.heartbeat = HeartbeatProducer(bench.network).start()
+    node.TIMEOUT_RESET_FAULT, node.TIMEOUT_SWITCH_STATE_SINGLE = 0.05, 0.2  # it fails whatever the wait
+    with pytest.raises(RuntimeError):
+        node.reset_from_fault()
+    assert State.of(node.sdo[Index.STATUSWORD].raw) is State.FAULT
+    assert node.sdo[Index.ERROR_CODE].raw == EmcyCode.CABLE_BROKEN
+
+
 def test_telemetry_scaled_in_profile_units(bench):
     (node,) = bench.start("shoulder_left")
     s = scaling("shoulder_left")

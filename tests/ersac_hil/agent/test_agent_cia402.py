@@ -12,7 +12,7 @@ import pytest
 
 from ersac_hil.agent.cia402 import Cia402Bus, agent_bus
 from ersac_hil.agent.bus import AgentBus
-from ersac_hil.agent.errors import ConfigRefused
+from ersac_hil.agent.errors import ConfigRefused, DriveFault
 from ersac_hil.agent.episode import EpisodeRunner
 from ersac_hil.agent.policies import ArmImpedance
 from ersac_hil.agent.telemetry import JOINTS, Commands
@@ -20,7 +20,7 @@ from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.timing import PATIENCE_S, PATIENT, patient_controllers, patient_sdo
 from protocol.can.busconfig import BusConfig
 from protocol.can.cia402 import Index
-from protocol.can.objects import Control
+from protocol.can.objects import Control, EmcyCode
 from protocol.robot import default_description, load_description
 from protocol.zenoh import EpisodeRequest
 
@@ -150,3 +150,16 @@ def test_agent_service_serves_episodes_on_cia402_drives():
             result = EpisodeResult.from_json(replies[0].ok.payload)
             assert result.status == "ok", result.detail
             assert result.telemetry["n_cycles"] == 400
+
+
+def test_a_drive_no_reset_clears_is_refused_naming_its_error_code(rig):
+    robot, bus = rig
+    drive = robot.nodes["elbow_left"]
+    bus.nmt_start()
+    drive.app.on_failure(EmcyCode.CABLE_BROKEN)  # the plant's failure event (SimulatedRobot._step)
+    for node in bus.nodes.values():
+        if hasattr(node, "reset_from_fault"):  # its own wait is a known FIXME: not under test here
+            node.TIMEOUT_RESET_FAULT = 0.05
+    with pytest.raises(DriveFault) as exc:
+        bus.enable_drives()
+    assert str(exc.value) == "elbow_left: still in FAULT after a fault reset (error code 0xFF10, 0x603F)"
