@@ -12,8 +12,9 @@ child's stdin, each a length-prefixed pickle of a list of tuples:
 * ``("log", stamp_ns, level, text)``: an event;
 * ``("frames", timestamp_s, frames, sent)``: CAN frames of one burst (``AgentBus.tap``).
 
-The child runs at a lower priority (``NICE``): when the cores are busy, the control loop and the
-simulator go first and the writer catches up later (its input is the pipe, enlarged to
+The child runs at a lower priority: normal scheduling (a real-time agent's SCHED_FIFO, which
+children inherit, is dropped) at niceness ``NICE``, so when the cores are busy the control
+loop and the simulator go first and the writer catches up later (its input is the pipe, enlarged to
 ``PIPE_BYTES``, behind the feed's bounded queue). The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
 pipe) and ends at the end of its input: it finishes the episode it has open and exits, so the
 agent's ``close`` leaves no child. On SIGTERM it does the same.
@@ -127,8 +128,19 @@ def serve(stream: BinaryIO) -> None:
             episodes.close()
 
 
-def main() -> int:
+def _background() -> None:
+    """This process off real-time scheduling (inherited from a real-time agent), ``NICE`` lower."""
+    if hasattr(os, "sched_setscheduler"):
+        try:
+            if os.sched_getscheduler(0) != os.SCHED_OTHER:
+                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except OSError as exc:  # lowering is always permitted; say so if it was not
+            log.warning("MCAP writer process keeps its scheduling: %s", exc)
     os.nice(NICE)
+
+
+def main() -> int:
+    _background()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s")

@@ -4,6 +4,7 @@ documented keys; every message decoded with rosbags' Jazzy typestore; the MCAP f
 mcap + mcap-ros2-support and with rosbags."""
 from __future__ import annotations
 
+import os
 import uuid
 from collections import Counter, defaultdict
 
@@ -19,6 +20,7 @@ from ersac_hil.agent.service import AgentConfig, AgentService
 from ersac_hil.agent.telemetry import JOINTS
 from ersac_hil.ros2 import names
 from ersac_hil.ros2.options import Ros2Options
+from ersac_hil.ros2.writer import NICE
 from ersac_hil.zenoh_session import EmbeddedRouter
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.waiting import wait_until
@@ -73,6 +75,9 @@ def run(tmp_path_factory):
                         with open(record / r.mcap, "rb") as f:
                             summaries.append(make_reader(f).get_summary())
                     writer = agent.feed.recorder._proc
+                    wait_until(lambda: os.getpriority(os.PRIO_PROCESS, writer.pid) >= os.getpriority(os.PRIO_PROCESS, 0) + NICE,
+                               what="the writer process at a lower priority")
+                    writer_scheduler = os.sched_getscheduler(writer.pid)
                 assert writer.poll() == 0  # the agent's stop ended its writer process
                 wait_until(lambda: all(kind == zenoh.SampleKind.DELETE for kind in tokens.values()), what="tokens withdrawn")
                 sub.undeclare()
@@ -80,7 +85,7 @@ def run(tmp_path_factory):
     finally:
         robot.close()
     return dict(samples=samples, tokens=tokens, replies=replies, telemetry=telemetry, record=record,
-                dropped=dropped, summaries=summaries)
+                dropped=dropped, summaries=summaries, writer_scheduler=writer_scheduler)
 
 
 def test_every_sample_is_on_a_documented_key_with_rosbags_hash_and_decodes(run):
@@ -182,6 +187,7 @@ def test_each_episode_is_one_mcap_file_that_mcap_and_rosbags_read(run):
 
 
 def test_the_files_are_whole_under_their_names_and_nothing_is_left_half_written(run):
+    assert run["writer_scheduler"] == os.SCHED_OTHER  # never real-time, even under a SCHED_FIFO agent
     assert all(summary is not None and summary.statistics.message_count > 0 for summary in run["summaries"])
     assert sorted(p.name for p in run["record"].iterdir()) == ["ep-r1.mcap", "ep-r2.mcap"]
 

@@ -4,6 +4,8 @@ operators read them, the daemon sees nothing and an observer cannot publish."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import pytest
 
@@ -16,13 +18,30 @@ from ersac_hil.zenoh_session import EmbeddedRouter, ZenohOptions, free_tcp_port,
 
 HOST = "127.0.0.11"
 TIMEOUT = 10.0
+SAMPLE = b"\x00\x01\x00\x00"
+
+
+@contextmanager
+def _router(tmp_path_factory, name: str, **certs_args) -> Iterator:  # noqa: ANN001
+    """``certs init`` (``certs_args``) and a real router with its config."""
+    certs = init_certs(tmp_path_factory.mktemp(name), router=(f"tls/{HOST}:{free_tcp_port(HOST)}",), **certs_args)
+    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
+                                              mode="router")):
+        yield certs
+
+
+def _put_until(enough: Callable[[], bool], *nodes: Ros2Node, every_s: float = 0.02) -> None:
+    """Each node puts an episode sample every ``every_s`` until ``enough()`` (at most TIMEOUT)."""
+    deadline = time.monotonic() + TIMEOUT
+    while not enough() and time.monotonic() < deadline:
+        for node in nodes:
+            node.put("episode", SAMPLE)
+        time.sleep(every_s)
 
 
 @pytest.fixture(scope="module")
 def deployment(tmp_path_factory):
-    certs = init_certs(tmp_path_factory.mktemp("ros2-acl"), router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
-    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
-                                              mode="router")):
+    with _router(tmp_path_factory, "ros2-acl") as certs:
         yield certs
 
 
@@ -49,10 +68,7 @@ def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment)
                 for role, s in (("observer", observer), ("daemon", daemon), ("operator", operator))]
         node = Ros2Node.declare(agent, Ros2Options(), "ubot1")
         try:
-            deadline = time.monotonic() + TIMEOUT
-            while not (got["observer"] and got["operator"]) and time.monotonic() < deadline:
-                node.put("episode", b"\x00\x01\x00\x00")
-                time.sleep(0.05)
+            _put_until(lambda: bool(got["observer"] and got["operator"]), node, every_s=0.05)
             assert got["observer"] and got["operator"]
             key = got["observer"][0]
             assert key.startswith("0/ubot1/episode/diagnostic_msgs::msg::dds_::DiagnosticStatus_/RIHS01_")
@@ -64,7 +80,7 @@ def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment)
             heard = len(got["operator"])
             for _ in range(20):
                 observer.put("0/ubot1/joint_states/fake", b"x")
-            node.put("episode", b"\x00\x01\x00\x00")  # a later sample of the agent's does arrive
+            node.put("episode", SAMPLE)  # a later sample of the agent's does arrive
             deadline = time.monotonic() + TIMEOUT
             while len(got["operator"]) == heard and time.monotonic() < deadline:
                 time.sleep(0.05)
@@ -73,7 +89,7 @@ def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment)
             # subscribers (its publishers filter on them)
             before = len(got["observer"])
             for _ in range(20):
-                node.put("episode", b"\x00\x01\x00\x00")
+                node.put("episode", SAMPLE)
             deadline = time.monotonic() + TIMEOUT
             while len(got["observer"]) < before + 20 and time.monotonic() < deadline:
                 time.sleep(0.05)
@@ -87,10 +103,7 @@ def test_observers_see_the_agents_node_and_samples_and_others_do_not(deployment)
 
 @pytest.fixture(scope="module")
 def fleet_deployment(tmp_path_factory):
-    certs = init_certs(tmp_path_factory.mktemp("ros2-acl-fleet"), robots=("ubot1", "ubot2"),
-                       router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
-    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
-                                              mode="router")):
+    with _router(tmp_path_factory, "ros2-acl-fleet", robots=("ubot1", "ubot2")) as certs:
         yield certs
 
 
@@ -101,11 +114,7 @@ def test_a_robots_agent_publishes_under_its_own_namespace_only(fleet_deployment)
         own = Ros2Node.declare(agent, Ros2Options(), "ubot1")
         other = Ros2Node.declare(agent, Ros2Options(), "ubot2")  # speaking for another robot
         try:
-            deadline = time.monotonic() + TIMEOUT
-            while sum(k.startswith("0/ubot1/") for k in got) < 20 and time.monotonic() < deadline:
-                own.put("episode", b"\x00\x01\x00\x00")
-                other.put("episode", b"\x00\x01\x00\x00")
-                time.sleep(0.02)
+            _put_until(lambda: sum(k.startswith("0/ubot1/") for k in got) >= 20, own, other)
             assert sum(k.startswith("0/ubot1/") for k in got) >= 20
             assert not [k for k in got if not k.startswith("0/ubot1/")]
             tokens = [names.parse_token(str(r.ok.key_expr)) for r in observer.liveliness().get("@ros2_lv/0/**", timeout=2)]
@@ -118,10 +127,7 @@ def test_a_robots_agent_publishes_under_its_own_namespace_only(fleet_deployment)
 
 @pytest.fixture(scope="module")
 def domain_deployment(tmp_path_factory):
-    certs = init_certs(tmp_path_factory.mktemp("ros2-acl-domain"), ros_domain=42,
-                       router=(f"tls/{HOST}:{free_tcp_port(HOST)}",))
-    with EmbeddedRouter(config=resolve_config(ZenohOptions(config_file=str(certs.configs["router"])),
-                                              mode="router")):
+    with _router(tmp_path_factory, "ros2-acl-domain", ros_domain=42) as certs:
         yield certs
 
 
@@ -135,11 +141,7 @@ def test_certs_for_another_ros_domain_let_that_domain_through_and_not_domain_0(d
         on42 = Ros2Node.declare(agent, Ros2Options(domain=42), "ubot1")
         on0 = Ros2Node.declare(agent, Ros2Options(domain=0), "ubot1")
         try:
-            deadline = time.monotonic() + TIMEOUT
-            while sum(k.startswith("42/") for k in got) < 20 and time.monotonic() < deadline:
-                on0.put("episode", b"\x00\x01\x00\x00")
-                on42.put("episode", b"\x00\x01\x00\x00")
-                time.sleep(0.02)
+            _put_until(lambda: sum(k.startswith("42/") for k in got) >= 20, on0, on42)
             assert sum(k.startswith("42/ubot1/episode/") for k in got) >= 20
             assert [k for k in got if not k.startswith("42/")] == []
             tokens = [names.parse_token(str(r.ok.key_expr)) for r in observer.liveliness().get("@ros2_lv/42/**", timeout=2)]

@@ -1,0 +1,93 @@
+"""What the ROS 2 bridge and MCAP recording cost the agent, in CPU as well as in wall time.
+
+    python bench/ros2_cost.py [--rounds 3] [--episodes 3] [--task bracing]
+
+Per round, three agents one after the other (off, ``--ros2``, ``--ros2 --record DIR``), each
+with its simulated robot in this process on a virtual bus and a Zenoh router, run the same
+lock-step episodes (same seed and theta). Printed per round and variant: the median episode
+wall time, this process's CPU time per SYNC cycle (agent, simulator, ROS 2 feed thread, Zenoh
+threads: ``time.process_time``) and the MCAP writer process's CPU per cycle (its rusage once the
+agent has stopped and reaped it), with the load average. CPU per cycle is the figure a shared
+machine disturbs least; wall time is what the issue's 10 % target is about. No pass/fail.
+OPENBLAS_NUM_THREADS=1.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from ersac_hil.agent.service import AgentConfig, AgentService  # noqa: E402
+from ersac_hil.ros2.options import Ros2Options  # noqa: E402
+from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
+from firmware_sim.nodes.simrobot import SimulatedRobot  # noqa: E402
+from protocol.can.busconfig import BusConfig  # noqa: E402
+from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace  # noqa: E402
+
+THETA = {"bracing": (0.5,), "lifting": (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)}
+VARIANTS = ("off", "--ros2", "--ros2 --record")
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def run(variant: str, task: str, episodes: int, record: Path) -> tuple[list[float], float, float, int]:
+    """(episode wall times, process CPU per cycle [ms], writer CPU per cycle [ms], cycles)."""
+    bus = BusConfig("virtual", f"cost-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("cost")
+    robot = SimulatedRobot(bus)
+    walls, cycles = [], 0
+    children0 = _children_cpu()
+    try:
+        with EmbeddedRouter() as router, router.open_client() as session:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,),
+                                 ros2=Ros2Options() if variant != "off" else None,
+                                 record=str(record) if "--record" in variant else None)
+            with AgentService(config):
+                while not list(session.liveliness().get(keys.agent_alive, timeout=1)):
+                    time.sleep(0.05)
+                cpu0 = time.process_time()
+                for i in range(episodes):
+                    request = EpisodeRequest(f"cost-{uuid.uuid4().hex[:8]}", task, THETA[task], 7 + i)
+                    t0 = time.perf_counter()
+                    (reply,) = list(session.get(keys.episode_run, payload=request.to_json(), timeout=120))
+                    walls.append(time.perf_counter() - t0)
+                    cycles += round(EpisodeResult.from_json(reply.ok.payload).telemetry["n_cycles"])
+                cpu = time.process_time() - cpu0
+    finally:
+        robot.close()
+    return walls, cpu / cycles * 1e3, (_children_cpu() - children0) / cycles * 1e3, cycles
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--episodes", type=int, default=3)
+    p.add_argument("--task", choices=tuple(THETA), default="bracing")
+    args = p.parse_args()
+    print(f"lock-step {args.task}, {args.episodes} episodes per variant and round, virtual bus in this process")
+    with tempfile.TemporaryDirectory(prefix="ros2-cost-") as tmp:
+        for rnd in range(1, args.rounds + 1):
+            print(f"round {rnd}  load average {os.getloadavg()[0]:.2f}")
+            for variant in VARIANTS:
+                walls, cpu, writer, cycles = run(variant, args.task, args.episodes, Path(tmp))
+                print(f"  {variant:<16} wall {statistics.median(walls):5.2f} s (median of {len(walls)})  "
+                      f"process CPU {cpu:5.3f} ms/cycle  writer process CPU {writer:5.3f} ms/cycle  "
+                      f"({cycles} cycles)", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
