@@ -2,6 +2,7 @@
 every PDO the way the agent and the simulator encode it (EDS maps, ``pdo_struct``)."""
 from __future__ import annotations
 
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -64,7 +65,7 @@ def test_a_pdo_frame_decodes_to_raw_times_the_eds_factor_in_the_eds_unit(db, pdo
     layout = pdo_struct(pdo)
     raws = []
     for code in layout.format.lstrip("<"):
-        bits = 8 * __import__("struct").calcsize(code)
+        bits = 8 * struct.calcsize("<" + code)  # standard sizes, as the PDO layout packs them
         lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if code.islower() else (0, (1 << bits) - 1)
         raws.append(data.draw(st.integers(lo, hi)))
     message = db.get_message_by_frame_id(pdo.cob_id)
