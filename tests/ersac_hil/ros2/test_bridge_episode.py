@@ -217,6 +217,38 @@ def test_a_feed_that_falls_behind_drops_counts_and_reports(tmp_path, caplog):
     assert feed.dropped == int(meta["feed"]["dropped_samples"])
 
 
+def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(tmp_path):
+    """``--record`` alone: no ROS 2 node, the writer process encodes each cycle's joint state
+    and IMU from the telemetry itself."""
+    bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-rec")
+    robot, telemetry = SimulatedRobot(bus), []
+    try:
+        with EmbeddedRouter() as router, router.open_client() as session:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), record=str(tmp_path))
+            with AgentService(config) as agent:
+                assert agent.feed.node is None
+                hook = agent.runner.observe
+                agent.runner.observe = lambda tel: (telemetry.append(tel), hook(tel))
+                wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                request = EpisodeRequest("ep-o1", "bracing", (0.5,), 5)
+                [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
+                           session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+    finally:
+        robot.close()
+    got = defaultdict(list)
+    with open(tmp_path / reply.mcap, "rb") as f:
+        for _, channel, _, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            got[channel.topic].append(decoded)
+    axes = [default_description().axis(j) for j in JOINTS]
+    states = got["/ubot_rec/joint_states"]
+    assert len(states) == len(got["/ubot_rec/imu"]) == len(telemetry) == round(reply.telemetry["n_cycles"])
+    for msg, tel in zip(states, telemetry):
+        assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
+        assert list(msg.effort) == [i * (a.torque_constant * a.gear) for i, a in zip(tel.current, axes)]
+    assert [m.message for m in got["/ubot_rec/episode"]] == ["started", reply.status]
+
+
 def test_report_exports_a_run_with_every_episode_and_the_updates(run, tmp_path):
     """The daemon's store of these episodes (schema with the MCAP name), exported by
     ``ersac-hil report RUN --mcap FILE --mcap-dir DIR`` into one file."""
