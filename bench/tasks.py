@@ -457,13 +457,18 @@ def kappa0_bench(args: argparse.Namespace) -> None:
     print(f"  within {TOLERANCE} of {opt:.2f}: {np.mean(np.abs(arg - opt) <= TOLERANCE + 1e-9):.3f}")
     sigma, (lo, hi) = float(d.sigma[0]), d.lr_range
     J = lambda t: float(np.interp(t, land.theta, land.mean))  # noqa: E731
+    r = lambda t: float(np.interp(t, land.theta, land.std))  # noqa: E731
+
+    def step(t: float) -> float:
+        """The expected update: the slope the +-sigma perturbations see, alpha = eta / r."""
+        slope = (J(t + sigma) - J(t - sigma)) / (2 * sigma)
+        return min(max(t - min(max(d.eta / r(t), lo), hi) * slope * sigma**2, 0.0), 1.0)
+
     theta, path, spread = float(d.theta0[0]), [], 0.0
     updates = d.episodes - 10
     for _ in range(updates):
-        slope = (J(theta + sigma) - J(theta - sigma)) / (2 * sigma)  # what +-sigma perturbations see
-        alpha = min(max(d.eta / float(np.interp(theta, land.theta, land.std)), lo), hi)
-        theta = min(max(theta - alpha * slope * sigma**2, 0.0), 1.0)
-        spread += (alpha * float(np.interp(theta, land.theta, land.std)) * sigma) ** 2
+        theta = step(theta)
+        spread += (min(max(d.eta / r(theta), lo), hi) * r(theta) * sigma) ** 2
         path.append(theta)
     print(f"expected path of the paper's rule (eta {d.eta}, sigma {sigma}, eta / r~ in [{lo}, {hi}], r~ the true "
           f"spread) from {float(d.theta0[0]):.2f} over the {updates} updates after the warm-up: "
@@ -472,9 +477,7 @@ def kappa0_bench(args: argparse.Namespace) -> None:
           f"of one run spreads it by ~{math.sqrt(spread):.3f} (sd of the sum of the updates' noise, no restoring drift)")
     more = 0
     while theta < opt - TOLERANCE and more < 10_000:
-        slope = (J(theta + sigma) - J(theta - sigma)) / (2 * sigma)
-        alpha = min(max(d.eta / float(np.interp(theta, land.theta, land.std)), lo), hi)
-        theta = min(max(theta - alpha * slope * sigma**2, 0.0), 1.0)
+        theta = step(theta)
         more += 1
     print(f"updates the expected path needs to reach {opt - TOLERANCE:.2f}: {updates + more}")
 
