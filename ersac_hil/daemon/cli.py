@@ -60,7 +60,8 @@ def _daemon(args: argparse.Namespace) -> int:
     flags: dict[str, Any] = {
         "robot": args.robot[0] if args.robot else None,
         "fleet": tuple(args.robot[1:]) if args.robot and len(args.robot) > 1 else None,
-        "batch": args.batch, "interleave_every": args.interleave_every, "learner": args.learner, "prior": args.prior, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
+        "batch": args.batch, "interleave_every": args.interleave_every, "learner": args.learner, "prior": args.prior,
+        "prior_critic": True if args.prior_critic else None, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
         "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
         "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
         "zenoh": tuple(args.zenoh) if args.zenoh else None, "zenoh_config": args.zenoh_config,
@@ -322,6 +323,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulator prior of a new run: a landscape JSON, a reproduce directory or a store "
                         "of simulated episodes of the task; start from its optimum for kappa, drop it if "
                         "the robot's warm-up episodes disagree (docs/learner.md)")
+    p.add_argument("--prior-critic", action="store_true",
+                   help="with a landscape --prior: also the critic's prior mean (residual model; docs/learner.md)")
     p.add_argument("--prefix", help=f"key prefix (default {DEFAULT_PREFIX})")
     p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
     p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")

@@ -132,6 +132,10 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             simulated optimum for its kappa (unless ``theta0`` is given) and drops the prior
             when the robot's warm-up episodes disagree with it (docs/learner.md); read when the
             run is created, stored with it, ignored on resume.
+        prior_critic: with a landscape ``prior`` (1-D tasks), also make it the critic's prior
+            mean while the prior is kept (the residual model, docs/learner.md "Simulator
+            prior"); off by default: measured worse than the start alone where the simulated
+            optimum is wrong by 0.2.
         learner: named learner settings (``ersac_hil.learner.presets``: ``paper``, ``guarded``,
             ``select``); ``None``: the task's default (bracing ``select``, lifting ``guarded``).
         prefix: key prefix (default ``ersac``).
@@ -174,6 +178,7 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     interleave_every: Annotated[int, Meta(ge=0, le=1000)] | None = None
     learner: str | None = None
     prior: str | None = None
+    prior_critic: bool = False
     task: TaskName = "bracing"
     kappa: Kappa = 0.0
     episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None

@@ -14,6 +14,7 @@ update (see ``engine.Engine.restore``); together with the derived scenario seeds
 """
 from __future__ import annotations
 
+import dataclasses
 import secrets
 import time
 from pathlib import Path
@@ -132,6 +133,8 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         if config.prior is not None:
             from .prior import load_prior
             prior = load_prior(config.prior, config.task, config.kappa, config.weights)
+            if not config.prior_critic:  # the landscape is what makes it the critic's prior
+                prior = dataclasses.replace(prior, landscape=None)
             settings["prior"] = prior.to_dict()
             if "theta0" not in config.explicit:
                 settings["theta0"] = list(get_task(config.task).check_theta(prior.theta, "prior theta"))

@@ -70,9 +70,10 @@ def test_costs_drawn_as_the_simulator_says_are_consistent_far_off_ones_are_not(m
 
 
 def test_a_right_prior_starts_the_run_at_the_simulated_optimum(router, agent_factory, daemon_factory, tmp_path):
+    """With --prior-critic the landscape is also the critic's prior mean."""
     f = landscape(tmp_path / "l.json", true_cost)
     agent_factory("pri")
-    daemon = daemon_factory("pri", episodes=14, kappa=2.0, prior=str(f))
+    daemon = daemon_factory("pri", episodes=14, kappa=2.0, prior=str(f), prior_critic=True)
     assert daemon.finished.wait(60) and daemon.exit_code == 0
     h = history(daemon.config.db)
     best = GRID[np.argmin([F2(t) for t in GRID])]
@@ -94,7 +95,7 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     wrong = landscape(tmp_path / "wrong.json", lambda t: (8.0 - 4.0 * t, 0.3))
     agent_factory("wro")
     agent_factory("nop")
-    with_prior = daemon_factory("wro", episodes=30, kappa=2.0, prior=str(wrong), learner="guarded")
+    with_prior = daemon_factory("wro", episodes=30, kappa=2.0, prior=str(wrong), learner="guarded", prior_critic=True)
     without = daemon_factory("nop", episodes=30, kappa=2.0, learner="guarded")
     assert with_prior.finished.wait(120) and without.finished.wait(120)
     assert with_prior.exit_code == 0 == without.exit_code
@@ -111,3 +112,14 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     # from there it learns like a run without the prior: no worse by more than the noise of
     # one run of 20 episodes (F2 in units of the synthetic cost: ~8-12 over the box)
     assert F2(float(h.final_policy[0])) <= F2(float(h0.final_policy[0])) + 0.5
+
+
+def test_without_prior_critic_the_prior_gives_the_start_only(router, agent_factory, daemon_factory, tmp_path):
+    f = landscape(tmp_path / "l.json", true_cost)
+    agent_factory("sta")
+    daemon = daemon_factory("sta", episodes=12, kappa=2.0, prior=str(f))
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    h = history(daemon.config.db)
+    assert "landscape" not in h.run.settings["prior"]
+    with Store(daemon.config.db, readonly=True) as store:
+        assert not any("prior" in u.state["critic"] for u in store.updates(h.run.run_id))
