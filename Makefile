@@ -21,8 +21,10 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/ersac-hil demo
 
+# one worker per core, a test file per worker at a time (module fixtures set up once); much of
+# the suite waits on processes and Zenoh, so two workers halve it on two cores
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 # build the wheel, install it into a fresh venv, smoke-test it from outside the tree (CI runs it)
 wheel-smoke:
