@@ -30,8 +30,8 @@ simulator  the CAN bus only: send and receive frames on ``can/**`` (the CAN-over
 =========  ===================================================================================
 
 ROS 2 (``agent --ros2``, ``ersac_hil.ros2``) lives outside ``<prefix>/`` too: on its ROS domain
-the agent may put ``<domain>/**`` and declare tokens ``@ros2_lv/<domain>/**``; operators and
-observers may subscribe to and read them (:func:`ros2_rules`).
+the agent may put ``<domain>/**`` and declare tokens ``@ros2_lv/<domain>/**`` and is told of
+the subscribers there; operators and observers may subscribe to and read them (:func:`ros2_rules`).
 
 The CAN bus between an agent and its robot (CAN over Zenoh) is the other key space outside
 ``<prefix>/<robot>/``: ``can/<channel>``, sent and received by ``agent`` and ``simulator``
