@@ -296,6 +296,11 @@ class SlaveNode(canopen.LocalNode):
         are written only by ``apply_commands`` and ``set_value``)."""
         return self._values
 
+    @property
+    def synchronous_rpdo_keys(self) -> frozenset[tuple[int, int]]:
+        """(index, sub-index) of every object its synchronous RPDOs carry (after ``connect``)."""
+        return self._inbox.keys
+
     def received(self, index: int, subindex: int = 0) -> int | None:
         """The application value of an object if one was set or received, else ``None``."""
         return self._values.get((index, subindex))

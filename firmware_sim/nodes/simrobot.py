@@ -4,7 +4,8 @@ drive per axis: ``firmware_sim.nodes.cia402``; the IMU and the test bench), SYNC
 Lock-step (default): each SYNC applies the RPDOs received since the previous SYNC, advances
 exactly one control period of physics, sends the failure EMCYs of that period, then every
 node samples and sends its synchronous TPDOs. Real-time: SYNC applies commands, samples and
-answers from the present state at once (as a drive samples at SYNC), and a physics thread
+answers from the present state at once (as a drive samples at SYNC; a CiA 402 drive whose
+SYNC commands are only targets takes them right after its answer), and a physics thread
 advances one period right after each answer; it steps on the wall clock (overruns counted)
 whenever no SYNC has come for half a period past its due time (the agent between episodes).
 So a SYNC never waits for a physics step: on two cores under ``SCHED_FIFO`` a step running
@@ -36,6 +37,9 @@ from protocol.can.objects import EmcyCode, Index
 from protocol.robot import RobotDescription
 
 log = logging.getLogger(__name__)
+
+_STATE_COMMANDS = frozenset({(cia402.Index.CONTROLWORD, 0), (cia402.Index.MODES_OF_OPERATION, 0)})
+"""A drive's objects that change its statusword (and so the TPDOs of the SYNC they come with)."""
 
 _EMCY_OF = {FailureKind.OVER_CURRENT: EmcyCode.OVER_CURRENT, FailureKind.CABLE_BROKEN: EmcyCode.CABLE_BROKEN,
             FailureKind.FALLEN: EmcyCode.FALLEN, FailureKind.BOTTLE_DROPPED: EmcyCode.BOTTLE_DROPPED}
@@ -103,6 +107,11 @@ class SimulatedRobot:
                                            lockstep_period_s=None if realtime else control_period)
         for node in self.nodes.values():
             node.connect(self.network)
+        # real time: drives whose SYNC commands are only targets take them after the answer
+        # (a drive samples at SYNC; the targets change none of this SYNC's TPDOs, and the physics
+        # step that uses them follows the answer either way)
+        self.targets_after_answer = tuple(n for n in self.nodes.values() if realtime and isinstance(n.app, DriveApp)
+                                   and not n.synchronous_rpdo_keys & _STATE_COMMANDS)
         self._on_sync_apps = [n.app for n in self.nodes.values()
                               if type(n.app).on_sync is not NodeApplication.on_sync]
         self._sampler = TpdoSampler(tuple(self.nodes.values()))
@@ -142,9 +151,11 @@ class SimulatedRobot:
         return tuple(self._node_of_joint[j] for b in boards for j in BOARDS[b] if j in self._node_of_joint)
 
     def _on_sync(self, can_id, data, timestamp) -> None:
+        after = self.targets_after_answer
         with self.lock:
             for node in self.nodes.values():
-                node.apply_commands()
+                if node not in after:
+                    node.apply_commands()
                 node.agent_sync()
             for app in self._on_sync_apps:
                 app.on_sync()
@@ -160,6 +171,8 @@ class SimulatedRobot:
                 row = list(sampled[1])  # the sampler writes each node's status word into it
             self._sampler.pack(row, axes, frames)
             send_frames(self.network, frames)
+            for node in after:
+                node.apply_commands()
         if self.realtime:
             self._answered.set()
 

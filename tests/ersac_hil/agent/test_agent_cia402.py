@@ -22,6 +22,7 @@ from protocol.can.busconfig import BusConfig
 from protocol.can.cia402 import Index
 from protocol.can.objects import Control, EmcyCode
 from protocol.robot import default_description, load_description
+from protocol.robot.load import SHIPPED_DIR
 from protocol.zenoh import EpisodeRequest
 
 pytestmark = pytest.mark.timeout(300)
@@ -163,3 +164,30 @@ def test_a_drive_no_reset_clears_is_refused_naming_its_error_code(rig):
     with pytest.raises(DriveFault) as exc:
         bus.enable_drives()
     assert str(exc.value) == "elbow_left: still in FAULT after a fault reset (error code 0xFF10, 0x603F)"
+
+
+def test_real_time_episodes_with_the_host_torque_loop(tmp_path):
+    """Every axis in CST (the impedance law on the host each SYNC), SYNC on the wall clock
+    against the real-time simulator: the episodes run whole and carry the real-time figures;
+    the simulated drives take their targets after each SYNC's answer (targets only)."""
+    path = tmp_path / "cst.toml"
+    path.write_text((SHIPPED_DIR / "ubot5-cia402.toml").read_text().replace('mode = "csp-impedance"', 'mode = "cst"'))
+    description = load_description(path)
+    assert {a.mode for a in description.axes} == {"cst"}
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    with SimulatedRobot(config, description=description, realtime=True) as robot:
+        assert {n.device.name for n in robot.targets_after_answer} == set(JOINTS)  # the seven drives, not the IMU
+        bus = Cia402Bus(config, description, timing=replace(PATIENT, realtime=True)).open()
+        try:
+            bus.wait_for_nodes(timeout_s=PATIENCE_S)
+            patient_sdo(bus.nodes.values())
+            patient_controllers(bus.nodes.values())
+            runner = EpisodeRunner(bus)
+            for task, theta in (("bracing", [0.5]), ("lifting", [1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2])):
+                r = runner.run(runner.plan(EpisodeRequest(f"rt-{task}", task, theta, 1)))
+                assert r.status == "ok", r.detail
+                assert r.telemetry["n_cycles"] >= 200 and "host_compute_p99_ms" in r.telemetry
+        finally:
+            bus.close()
+    with SimulatedRobot(BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}"), description=description) as lockstep:
+        assert lockstep.targets_after_answer == ()  # lock-step: as before, commands before the answer
