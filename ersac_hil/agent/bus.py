@@ -417,6 +417,19 @@ class AgentBus:
         self._next_sync = self._received_at = None
         self.times = CycleTimes()
 
+    def _lockstep_heartbeat(self, frames: list[tuple[int, bytes]]) -> None:
+        """Lock-step: the agent's heartbeat also goes out before every SYNC that ends a heartbeat
+        period (``HEARTBEAT_PERIOD_MS``) of the simulation's clock (the SYNC counter). The controllers' watchdog counts
+        the agent's silence in SYNC periods in lock-step; a heartbeat paced by the wall clock
+        alone fell behind a fast lock-step on a loaded machine (EMCY 0x8130 in an episode's
+        first cycles, ``fault_heartbeat``, while the agent was fine). A stopped producer
+        (``stop_heartbeat``) sends none this way either."""
+        beat = self._heartbeat
+        if beat is not None and beat.running:
+            every = max(1, round(HEARTBEAT_PERIOD_MS / 1000 / self.timing.period_s))
+            if (self.cycles + 1) % every == 0:
+                frames.append(beat.frame())
+
     def cycle(self, commands: Commands | None = None) -> Telemetry:
         """One SYNC cycle: RPDOs with ``commands`` (the last ones if ``None``), SYNC, then
         every synchronous TPDO of this SYNC, decoded.
@@ -432,8 +445,10 @@ class AgentBus:
         self.check_heartbeats()
         # encoded before the pacing wait (the cycle count the encoder sees is the last cycle's)
         frames = self._encoder.encode(self._last_commands)  # type: ignore[union-attr]
-        frames.append((cobid.SYNC, b""))
         realtime = self.timing.realtime
+        if not realtime:
+            self._lockstep_heartbeat(frames)
+        frames.append((cobid.SYNC, b""))
         if realtime:
             if self._received_at is not None:
                 self.times.compute_s.append(time.perf_counter() - self._received_at)

@@ -41,6 +41,11 @@ class HeartbeatProducer:
     def running(self) -> bool:
         return self._thread is not None
 
+    def frame(self) -> tuple[int, bytes]:
+        """The heartbeat as a ``(COB-ID, data)`` frame, for a caller that sends it itself (the
+        agent's lock-step SYNC cycle)."""
+        return self._cob, bytes([self.state])
+
     def _run(self) -> None:
         while True:
             self._network.send_message(self._cob, [self.state])

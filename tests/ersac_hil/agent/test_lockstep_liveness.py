@@ -113,6 +113,35 @@ def test_a_stalled_agent_is_not_lost_by_the_controllers_in_lock_step():
         robot.close()
 
 
+def test_a_heartbeat_timer_behind_a_fast_lock_step_loses_no_controller():
+    """The controllers count the agent's silence in SYNC periods in lock-step (which may run
+    faster than real time), and a loaded machine delays the agent's heartbeat timer: with the
+    timer's beats a minute apart, SYNCs for seconds of simulated time and longer than the
+    consumer time on the wall clock bring no EMCY 0x8130 - the SYNC cycle carries the
+    heartbeat every heartbeat period of the simulation's clock."""
+    config = BusConfig("virtual", f"ls-{uuid.uuid4().hex[:8]}")
+    robot = SimulatedRobot(config)
+    try:
+        with AgentBus(config) as bus:
+            bus.wait_for_nodes(timeout_s=30)
+            bus.nmt_start()
+            timer = bus._heartbeat
+            timer.stop()
+            timer._period = 60.0
+            timer.start()  # one beat now, the next in a minute
+            consumer_s = max(n.consumer_timeout() for n in robot.nodes.values())
+            started, first = time.monotonic(), bus.cycles
+            # far longer than the consumer time both in SYNC periods and on the wall clock,
+            # however fast or slow the machine runs lock-step
+            while ((bus.cycles - first) * bus.timing.period_s < 2 * STALL_S
+                   or time.monotonic() - started < 2 * consumer_s):
+                bus.cycle()
+            bus.read("arm_right", Index.STATUS)  # SDO barrier: EMCYs sent before it have arrived
+            assert not [e for e in bus.emcy_events() if e.code == EmcyCode.HEARTBEAT_LOST]
+    finally:
+        robot.close()
+
+
 def test_real_time_keeps_the_robots_deadlines():
     timing = BusTiming(realtime=True)
     assert (timing.tpdo_wait_s, timing.liveness_s) == (timing.deadline_s, timing.heartbeat_timeout_s)
