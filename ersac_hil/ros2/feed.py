@@ -4,9 +4,11 @@
 agent bus's tap, ``AgentBus.tap``: the frames it sends and receives) only append to a bounded
 queue, without a lock and without waking anyone (the thread looks every ``POLL_S``); when the
 queue is full the item is dropped and counted (``dropped``; per episode in the MCAP file's
-metadata and a warning), so the control loop never waits for ROS 2 or the disk. The thread turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``,
-every ``decimation``-th cycle) and hands everything of an episode, in batches, to the MCAP
-writer process (``writer.RecorderProcess``), which encodes what is not encoded yet and writes
+metadata and a warning), so the control loop never waits for ROS 2 or the disk. The thread
+turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``, every
+``decimation``-th cycle), handing the interpreter on after every item (a SYNC loop waiting for
+it would otherwise wait up to Python's switch interval, 5 ms), and hands everything of an
+episode, in batches, to the MCAP writer process (``writer.RecorderProcess``), which encodes what is not encoded yet and writes
 the file. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the file
 appears under it when complete, ``recorder``).
 """
@@ -24,7 +26,7 @@ from ersac_hil.agent.telemetry import Telemetry
 from ersac_hil.ros2 import messages as m
 from ersac_hil.ros2.bridge import Ros2Node
 from ersac_hil.ros2.options import Ros2Options
-from ersac_hil.ros2.writer import RecorderProcess
+from ersac_hil.ros2.writer import CLOSE_WAIT_S, RecorderProcess
 from protocol.robot import RobotDescription
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 
@@ -114,12 +116,18 @@ class Feed:
         """Drain the queue, end the writer process (it finishes every file it was sent), withdraw
         the node."""
         self._framing = False
-        if self._thread is not None:
+        thread = self._thread
+        if thread is not None:
             self._control(None)
-            self._thread.join(timeout=30.0)
+            thread.join(timeout=CLOSE_WAIT_S)
+            if thread.is_alive() and self.recorder is not None:
+                # it waits on the full pipe to a writer far behind: end the writer, the write fails
+                log.warning("MCAP writer process %.0f s behind at stop: ended", CLOSE_WAIT_S)
+                self.recorder.terminate()
+                thread.join(timeout=CLOSE_WAIT_S)
             self._thread = None
         if self.recorder is not None:
-            self.recorder.close()
+            self.recorder.close()  # at most CLOSE_WAIT_S more, then the writer is ended
             self.recorder = None
         if self.node is not None:
             self.node.close()
@@ -173,6 +181,7 @@ class Feed:
                     getattr(self, "_on_" + item[0])(*item[1:])
                 except Exception as exc:  # never let one bad sample stop the thread
                     log.exception("ROS 2 feed: %s", exc)
+                time.sleep(0)  # let a waiting SYNC loop or receive thread have the interpreter
 
     def _record(self, *record: object) -> None:
         if self.recorder is not None:

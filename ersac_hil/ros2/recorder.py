@@ -80,16 +80,19 @@ class McapEpisodes:
                 cdr = m.can_frame_cdr(stamp, *frame)
             self.write("can", cdr, stamp)
 
-    def end(self, dropped: int = 0) -> str:
-        """Finish the episode's file and give it its name; the name (``""`` if none was open)."""
+    def end(self, dropped: int = 0, whole: bool = True) -> str:
+        """Finish the episode's file and (``whole``) give it its name; the name (``""`` if none
+        was open). Not ``whole``: readable, but cut short, so it keeps the ``.part`` suffix."""
         if self._writer is None:
             return ""
-        self._writer.add_metadata("feed", {"dropped_samples": str(dropped)})
+        self._writer.add_metadata("feed", {"dropped_samples": str(dropped), "whole": str(whole).lower()})
         self._writer.finish()
         self._file.close()  # type: ignore[union-attr]
-        os.replace(self.directory / (self._name + PART), self.directory / self._name)
+        if whole:
+            os.replace(self.directory / (self._name + PART), self.directory / self._name)
         name, self._writer, self._file, self._name = self._name, None, None, ""
         return name
 
     def close(self) -> None:
-        self.end()
+        """Finish what is open: an episode whose end never came is not whole (``end``)."""
+        self.end(whole=False)

@@ -17,7 +17,9 @@ children inherit, is dropped) at niceness ``NICE``, so when the cores are busy t
 loop and the simulator go first and the writer catches up later (its input is the pipe, enlarged to
 ``PIPE_BYTES``, behind the feed's bounded queue). The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
 pipe) and ends at the end of its input: it finishes the episode it has open and exits, so the
-agent's ``close`` leaves no child. On SIGTERM it does the same.
+agent's ``close`` leaves no child. On SIGTERM (``close`` after ``CLOSE_WAIT_S``) it stops at
+once. Either way a file it has not seen the end of is finished as far as it got but stays
+``.part``: a file under its name is always whole.
 """
 from __future__ import annotations
 
@@ -38,8 +40,9 @@ NICE = 10
 """The writer process's niceness above the agent's."""
 PIPE_BYTES = 1 << 20
 """The pipe to the writer (Linux ``F_SETPIPE_SZ``, where allowed; else the system's default)."""
-CLOSE_WAIT_S = 60.0
-"""How long ``close`` waits for the child to write what it was sent."""
+CLOSE_WAIT_S = 5.0
+"""How long ``close`` waits for the child to write what it was sent before it ends it (the
+episode it was writing then stays ``<episode_id>.mcap.part``): an agent stops within seconds."""
 
 
 class RecorderProcess:
@@ -67,6 +70,11 @@ class RecorderProcess:
             return False
         return True
 
+    def terminate(self) -> None:
+        """End the child now (SIGTERM): a write waiting on the full pipe fails at once."""
+        if self._proc.poll() is None:
+            self._proc.terminate()
+
     def close(self, timeout_s: float = CLOSE_WAIT_S) -> int:
         """End the child's input and wait until it has written everything; its exit status."""
         try:
@@ -76,9 +84,14 @@ class RecorderProcess:
         try:
             return self._proc.wait(timeout_s)
         except subprocess.TimeoutExpired:
-            log.error("MCAP writer process still writing after %.0f s: terminated", timeout_s)
+            log.warning("MCAP writer process still writing after %.0f s: ended, its last episode's file "
+                        "stays <episode_id>.mcap.part", timeout_s)
             self._proc.terminate()
-            return self._proc.wait(10.0)
+            try:
+                return self._proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                return self._proc.wait()
 
 
 def _read(stream: BinaryIO, n: int) -> bytes | None:
@@ -125,7 +138,7 @@ def serve(stream: BinaryIO) -> None:
                     episodes, per_amp = McapEpisodes(directory, namespace, robot), np.array(amps, dtype=np.float64)
     finally:
         if episodes is not None:
-            episodes.close()
+            episodes.close()  # an episode still open (its end never came) stays .part
 
 
 def _background() -> None:

@@ -5,6 +5,7 @@ mcap + mcap-ros2-support and with rosbags."""
 from __future__ import annotations
 
 import os
+import signal
 import uuid
 from collections import Counter, defaultdict
 
@@ -234,6 +235,7 @@ def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(
                 request = EpisodeRequest("ep-o1", "bracing", (0.5,), 5)
                 [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
                            session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+                wait_until(lambda: (tmp_path / reply.mcap).is_file(), what="the MCAP file, whole")
     finally:
         robot.close()
     got = defaultdict(list)
@@ -247,6 +249,30 @@ def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(
         assert tuple(msg.position) == tel.position and tuple(msg.velocity) == tel.velocity
         assert list(msg.effort) == [i * (a.torque_constant * a.gear) for i, a in zip(tel.current, axes)]
     assert [m.message for m in got["/ubot_rec/episode"]] == ["started", reply.status]
+
+
+def test_a_stalled_writer_process_does_not_hold_up_the_agents_stop(tmp_path):
+    """The writer process stopped (SIGSTOP) during an episode: the reply still comes, the
+    agent's stop ends the writer after its grace time, no process is left, and there is no
+    half-written file under the episode's name."""
+    bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-stall")
+    robot = SimulatedRobot(bus)
+    try:
+        with EmbeddedRouter() as router, router.open_client() as session:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), record=str(tmp_path))
+            with AgentService(config) as agent:
+                writer = agent.feed.recorder._proc
+                wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                os.kill(writer.pid, signal.SIGSTOP)
+                request = EpisodeRequest("ep-s1", "bracing", (0.5,), 5)
+                [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
+                           session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+                assert reply.mcap == "ep-s1.mcap"
+    finally:
+        robot.close()
+    assert writer.poll() is not None
+    assert not (tmp_path / "ep-s1.mcap").exists()  # at most ep-s1.mcap.part, as far as it got
 
 
 def test_report_exports_a_run_with_every_episode_and_the_updates(run, tmp_path):
