@@ -1,6 +1,6 @@
 """The faults of a real deployment, measured: each against the run without it.
 
-    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition,rogue-can] [--episodes 6] [--seed 3]
+    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition,rogue-sync,...] [--episodes 6] [--seed 3]
 
 Router, simulator, agent and daemon as separate processes on loopback (the partition: across
 two network namespaces made for it, skipped where they cannot be made), a real SQLite store,
@@ -12,8 +12,11 @@ end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 * disk-full: no file of the daemon may grow (``RLIMIT_FSIZE`` 0) after two episodes; then a
   daemon with space started again;
 * partition: the daemon's veth down for 10 s mid-episode, then up;
-* rogue-can: a second SYNC producer on the robot's CAN bus mid-episode until an attempt ended as
-  a bus fault.
+* rogue-KIND: a faulty node on the robot's CAN bus mid-episode until an attempt ended as a bus
+  fault, one row per kind: rogue-sync (a second SYNC producer), rogue-tpdo-twice (a forged TPDO
+  of the right length, so twice in one cycle), rogue-wrong-length (a PDO one byte short),
+  rogue-sdo-answer (SDO answers nobody asked for), rogue-babbler (a flood on COB-ID 0x001),
+  rogue-error-frame (error frames).
 
 Per fault: when it was detected (seconds from the fault to the daemon's first line other than
 progress, or its exit), when the run went on (seconds from the end of the fault - restart,

@@ -15,8 +15,8 @@ import subprocess
 import pytest
 
 from ersac_hil.daemon.service import EXIT_STORE
-from helpers.faults import (RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all, netns_unavailable,
-                            partition, reference_run, rogue_can, router_restart, tally)
+from helpers.faults import (ROGUE_NODES, RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all,
+                            netns_unavailable, partition, reference_run, rogue_can, router_restart, tally)
 from helpers.processes import gone
 
 pytestmark = pytest.mark.slow
@@ -101,12 +101,19 @@ def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference,
     _exact(reference, outcome)
 
 
-def test_a_rogue_can_node_faults_episodes_and_nothing_of_them_is_learned(reference, rig):
-    """A second SYNC producer on the robot's bus mid-run: the episodes it hits end as bus faults
-    (measured before: they came back ok with other costs), are run again once it is gone, and
-    the run learns exactly what it learns without it."""
-    outcome = rogue_can(rig)
+@pytest.mark.parametrize("kind", list(ROGUE_NODES))
+def test_a_faulty_can_node_faults_episodes_and_nothing_of_them_is_learned(reference, rig, kind):
+    """A faulty node on the robot's bus mid-run (``ROGUE_NODES``: a second SYNC producer, a
+    forged TPDO of the right length, PDOs of the wrong length, unsolicited SDO answers, a
+    babbler on a high-priority id, error frames): the agent lives on, the episode it hit ends
+    as a bus fault (measured before for SYNC and forged TPDOs: ok with other costs), is run
+    again once the node is gone, and the run learns exactly what it learns without it."""
+    outcome = rogue_can(rig, kind)
     assert outcome.exits == (0,), outcome.output
-    assert "fault_simulator (SYNC cycle" in outcome.output
-    assert any(status == "fault_simulator" for *_, status in outcome.history.attempts)
+    assert outcome.during is not None
+    (hit,) = [(idx, attempt) for idx, attempt, status in outcome.during.attempts if status == "pending"]
+    (status,) = [s for idx, attempt, s in outcome.history.attempts if (idx, attempt) == hit]
+    assert status.startswith("fault_"), (status, outcome.output)
+    assert f"{status} (SYNC cycle" in outcome.output
+    assert rig.children["agent"].alive(), "the agent crashed"
     _exact(reference, outcome)

@@ -8,6 +8,7 @@ No pytest in here: the bench runs without it.
 """
 from __future__ import annotations
 
+import functools
 import os
 import re
 import resource
@@ -23,8 +24,9 @@ from ersac_hil.daemon.store import Store
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import free_tcp_port
 
-__all__ = ["FAULTS", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally", "disk_full", "history", "kill_all",
-           "netns_unavailable", "partition", "reference_run", "rogue_can", "router_restart", "tally", "wait"]
+__all__ = ["FAULTS", "ROGUE_NODES", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally", "disk_full", "history",
+           "kill_all", "netns_unavailable", "partition", "reference_run", "rogue_can", "rogue_frames",
+           "router_restart", "tally", "wait"]
 
 ROBOT = "ubot1"
 TASK = "bracing"
@@ -412,38 +414,76 @@ def partition(rig: Rig) -> Outcome:
     return _finish(rig, "partition", None, (), t_fault, time.time())
 
 
-def rogue_can(rig: Rig) -> Outcome:
-    """A rogue node on the robot's CAN bus mid-episode (its own bus on the simulator's listener)
-    producing a frame the robot has one producer of: a foreign SYNC every 20 ms until an attempt
-    ended otherwise than ok (the agent called it a bus fault), then gone."""
+ROGUE_NODES: dict[str, str] = {
+    "sync": "a second SYNC producer",
+    "tpdo-twice": "a second producer of the IMU's TPDO, of the right length (twice in one cycle)",
+    "wrong-length": "the IMU's TPDO one byte short",
+    "sdo-answer": "SDO answers nobody asked for, on the agent's SDO client COB-ID of the IMU",
+    "babbler": "a babbling node flooding the high-priority COB-ID 0x001 (50 frames a tick)",
+    "error-frame": "error frames",
+}
+"""The faulty CAN nodes of :func:`rogue_can`: kind -> what it sends every ``ROGUE_TICK_S``."""
+ROGUE_TICK_S = 0.02
+
+
+def rogue_frames(kind: str) -> list:
+    """The frames the rogue node of ``kind`` (of :data:`ROGUE_NODES`) sends every tick."""
     import can
 
     from protocol.can import cobid
+    from protocol.can.devices import DEVICES
+    from protocol.can.pdo import pdo_maps, pdo_struct
 
+    def frame(cob_id: int, data: bytes = b"", error: bool = False) -> can.Message:
+        return can.Message(arbitration_id=cob_id, data=data, is_error_frame=error, is_extended_id=False)
+    imu = next(d for d in DEVICES if d.name == "imu")
+    tpdo = min((p for p in pdo_maps(imu) if p.direction == "tpdo" and 1 <= p.transmission_type <= 240),
+               key=lambda p: p.cob_id)  # a synchronous TPDO: exactly one a SYNC cycle
+    size = pdo_struct(tpdo).size
+    makers = {
+        "sync": lambda: [frame(cobid.SYNC)],
+        "tpdo-twice": lambda: [frame(tpdo.cob_id, bytes([0x55] * size))],
+        "wrong-length": lambda: [frame(tpdo.cob_id, bytes(size - 1))],
+        "sdo-answer": lambda: [frame(cobid.sdo_tx(imu.node_id), bytes([0x43, 0x18, 0x10, 1, 0, 0, 0, 0]))],
+        "babbler": lambda: [frame(0x001, bytes(8))] * 50,
+        "error-frame": lambda: [frame(0x000, bytes(8), error=True)],
+    }
+    return makers[kind]()
+
+
+def rogue_can(rig: Rig, kind: str = "sync") -> Outcome:
+    """A rogue node on the robot's CAN bus mid-episode (its own bus on the simulator's listener)
+    sending the frames of ``kind`` (:data:`ROGUE_NODES`) every ``ROGUE_TICK_S`` until an attempt
+    ended otherwise than ok (the agent called it a bus fault), then gone. ``during``: the store
+    when the node came (the attempt it hit first is the pending one)."""
+    import can
+
+    frames = rogue_frames(kind)
     rig.start()
     _mid_episode(rig, 2)
     rogue = can.Bus(interface="zenoh", channel=rig.can_channel)
-    sync = can.Message(arbitration_id=cobid.SYNC, data=b"", is_extended_id=False)
 
     def faulted() -> bool:
         h = history(rig.db)
         return bool(h and any(status not in ("ok", "pending") for *_, status in h.attempts))
     try:
         t_fault = time.monotonic()
+        during = history(rig.db)
         deadline = t_fault + RUN_S
         while not faulted():
             if time.monotonic() > deadline:
-                raise TimeoutError("no attempt ended as a bus fault under a rogue SYNC producer")
-            rogue.send(sync)
-            time.sleep(0.02)
+                raise TimeoutError(f"no attempt ended as a bus fault under {ROGUE_NODES[kind]}")
+            for msg in frames:
+                rogue.send(msg)
+            time.sleep(ROGUE_TICK_S)  # the node's own rate, not a synchronisation
     finally:
         rogue.shutdown()
-    return _finish(rig, "rogue-can", None, (), t_fault, time.time())
+    return _finish(rig, f"rogue-{kind}", during, (), t_fault, time.time())
 
 
 FAULTS: dict[str, Callable[[Rig], Outcome]] = {
     "kill-all": kill_all, "router-restart": router_restart, "disk-full": disk_full, "partition": partition,
-    "rogue-can": rogue_can}
+    **{f"rogue-{kind}": functools.partial(rogue_can, kind=kind) for kind in ROGUE_NODES}}
 
 
 def reference_run(work: Path, seed: int, episodes: int, timeout_s: float) -> History:
