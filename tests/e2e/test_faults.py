@@ -9,6 +9,7 @@ hence ``slow`` like the rest of tests/e2e.
 """
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 
@@ -101,6 +102,12 @@ def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference,
     _exact(reference, outcome)
 
 
+REASON = {"sync": "a frame of 0x080, which no node of the robot sends", "tpdo-twice": "twice in one cycle",
+          "wrong-length": "bytes, its map has", "sdo-answer": "an SDO answer from imu to no request",
+          "babbler": "a frame of 0x001, which no node of the robot sends", "error-frame": "error frame 0x000"}
+"""What the agent names as the fault of each faulty node (``ROGUE_NODES``)."""
+
+
 @pytest.mark.parametrize("kind", list(ROGUE_NODES))
 def test_a_faulty_can_node_faults_episodes_and_nothing_of_them_is_learned(reference, rig, kind):
     """A faulty node on the robot's bus mid-run (``ROGUE_NODES``: a second SYNC producer, a
@@ -114,6 +121,7 @@ def test_a_faulty_can_node_faults_episodes_and_nothing_of_them_is_learned(refere
     (hit,) = [(idx, attempt) for idx, attempt, status in outcome.during.attempts if status == "pending"]
     (status,) = [s for idx, attempt, s in outcome.history.attempts if (idx, attempt) == hit]
     assert status.startswith("fault_"), (status, outcome.output)
-    assert f"{status} (SYNC cycle" in outcome.output
+    said = rf"^episode +{hit[0] + 1} attempt {hit[1] + 1}: {status} \(SYNC cycle \d+: .*{re.escape(REASON[kind])}"
+    assert re.search(said, outcome.output, re.M), outcome.output  # detected as what it is (printed 1-based)
     assert rig.children["agent"].alive(), "the agent crashed"
     _exact(reference, outcome)
