@@ -12,11 +12,12 @@ end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 * disk-full: no file of the daemon may grow (``RLIMIT_FSIZE`` 0) after two episodes; then a
   daemon with space started again;
 * partition: the daemon's veth down for 10 s mid-episode, then up;
-* rogue-KIND: a faulty node on the robot's CAN bus mid-episode until an attempt ended as a bus
-  fault, one row per kind: rogue-sync (a second SYNC producer), rogue-tpdo-twice (a forged TPDO
-  of the right length, so twice in one cycle), rogue-wrong-length (a PDO one byte short),
-  rogue-sdo-answer (SDO answers nobody asked for), rogue-babbler (a flood on COB-ID 0x001),
-  rogue-error-frame (error frames).
+* rogue-KIND: a faulty node on the robot's CAN bus while the episode it hit runs, one row per
+  kind: rogue-sync (a second SYNC producer), rogue-tpdo-twice (a forged TPDO of the right
+  length, so twice in one cycle), rogue-wrong-length (a PDO one byte short), rogue-sdo-answer
+  (SDO answers nobody asked for), rogue-babbler (a flood on COB-ID 0x001), rogue-error-frame
+  (error frames); a kind the agent missed would leave that episode ok (differing where the
+  node changed its data; tests/e2e/test_faults.py asserts it ends as a bus fault).
 
 Per fault: when it was detected (seconds from the fault to the daemon's first line other than
 progress, or its exit), when the run went on (seconds from the end of the fault - restart,

@@ -89,11 +89,6 @@ def n_ok(db: Path) -> int:
     return len(h.episodes) if h else 0
 
 
-def pending(db: Path) -> bool:
-    h = history(db)
-    return bool(h and any(status == "pending" for _, _, status in h.attempts))
-
-
 @dataclass(frozen=True)
 class Tally:
     """A faulted run against the run without the fault: episodes of the reference missing
@@ -337,9 +332,17 @@ class Outcome:
     output: str
 
 
-def _mid_episode(rig: Rig, after: int) -> None:
-    """Wait until ``after`` episodes are stored ok and the next one runs (its attempt pending)."""
-    wait(lambda: n_ok(rig.db) >= after and pending(rig.db), RUN_S, f"{after} ok episodes and one running")
+def _mid_episode(rig: Rig, after: int) -> History:
+    """Wait until ``after`` episodes are stored ok and the next one runs (its attempt pending);
+    the store as it was then."""
+    seen: list[History] = []
+
+    def running() -> bool:
+        h = history(rig.db)
+        seen[:] = [h] if h else []
+        return bool(h and len(h.episodes) >= after and any(status == "pending" for *_, status in h.attempts))
+    wait(running, RUN_S, f"{after} ok episodes and one running")
+    return seen[0]
 
 
 def _recovered(rig: Rig, since_wall: float) -> float:
@@ -453,26 +456,27 @@ def rogue_frames(kind: str) -> list:
 
 def rogue_can(rig: Rig, kind: str = "sync") -> Outcome:
     """A rogue node on the robot's CAN bus mid-episode (its own bus on the simulator's listener)
-    sending the frames of ``kind`` (:data:`ROGUE_NODES`) every ``ROGUE_TICK_S`` until an attempt
-    ended otherwise than ok (the agent called it a bus fault), then gone. ``during``: the store
-    when the node came (the attempt it hit first is the pending one)."""
+    sending the frames of ``kind`` (:data:`ROGUE_NODES`) every ``ROGUE_TICK_S`` while the episode
+    it hit runs (the attempt pending when it came), then gone: however that attempt ended (a bus
+    fault, or ok if the agent missed the node), the run goes on without the node. ``during``:
+    the store when the node came."""
     import can
 
     frames = rogue_frames(kind)
     rig.start()
-    _mid_episode(rig, 2)
     rogue = can.Bus(interface="zenoh", channel=rig.can_channel)
 
-    def faulted() -> bool:
+    def running() -> bool:
         h = history(rig.db)
-        return bool(h and any(status not in ("ok", "pending") for *_, status in h.attempts))
+        return h is None or any((idx, attempt) == hit and status == "pending" for idx, attempt, status in h.attempts)
     try:
+        during = _mid_episode(rig, 2)
+        (hit,) = [(idx, attempt) for idx, attempt, status in during.attempts if status == "pending"]
         t_fault = time.monotonic()
-        during = history(rig.db)
         deadline = t_fault + RUN_S
-        while not faulted():
+        while running():
             if time.monotonic() > deadline:
-                raise TimeoutError(f"no attempt ended as a bus fault under {ROGUE_NODES[kind]}")
+                raise TimeoutError(f"the episode under {ROGUE_NODES[kind]} did not end")
             for msg in frames:
                 rogue.send(msg)
             time.sleep(ROGUE_TICK_S)  # the node's own rate, not a synchronisation
