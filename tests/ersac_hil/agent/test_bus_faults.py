@@ -132,3 +132,15 @@ def test_fuzzed_frames_during_episodes_are_never_ok(fuzz_rig, frames, at_s):
     assert result.status in STATUSES
     if injected:  # (an earlier fault may end the episode before at_s: then nothing to say)
         assert result.status != "ok", (result.status, result.detail)
+
+
+@pytest.mark.parametrize("can_backend", ["virtual"], indirect=True)
+def test_an_unsolicited_sdo_answer_leaves_later_transfers_clean(rig):
+    """An SDO answer nobody asked for is one bus fault, not a debt: the node's later transfers
+    and the episodes after them are clean (the agent once counted answers against requests over
+    its lifetime, so after one stray answer every later answer of that node was 'to no request')."""
+    result, injected = rig.episode(_frames("sdo_answer"))
+    assert injected and _is_bus_fault(result), (result.status, result.detail)
+    rig.bus.read(IMU.name, 0x1018, 1)  # a transfer of that node: its vendor id
+    calm, _ = rig.episode()
+    assert calm.status == "ok", calm.detail
