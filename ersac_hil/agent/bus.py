@@ -167,8 +167,7 @@ class AgentBus:
         self._received_at: float | None = None  # when the last real-time cycle had its TPDOs
         self.times = CycleTimes()
         self._last_commands = Commands()
-        self._sdo_requests: dict[str, int] = {}
-        self._sdo_answers: dict[str, int] = {}
+        self._sdo_unanswered: dict[str, int] = {}  # requests sent whose answer has not come, per node
         self._sink: FrameSink | None = None
         self._tap_listener: _Tap | None = None
 
@@ -376,17 +375,18 @@ class AgentBus:
     def _counted(self, name: str, send_request):  # noqa: ANN001, ANN202
         def send(request) -> None:  # noqa: ANN001
             with self._cond:
-                self._sdo_requests[name] = self._sdo_requests.get(name, 0) + 1
+                self._sdo_unanswered[name] = self._sdo_unanswered.get(name, 0) + 1
             send_request(request)
         return send
 
     def _on_sdo_answer(self, name: str) -> None:
+        """An answer takes one unanswered request; with none it is a bus fault, and is not
+        carried on (a stray answer does not make the node's next answer one too many)."""
         with self._cond:
-            answers = self._sdo_answers[name] = self._sdo_answers.get(name, 0) + 1
-            requests = self._sdo_requests.get(name, 0)
-        if answers > requests:
-            self._tpdos.note(f"an SDO answer from {name} to no request ({answers} answers to "  # type: ignore[union-attr]
-                             f"{requests} requests)")
+            unanswered = self._sdo_unanswered.get(name, 0)
+            self._sdo_unanswered[name] = max(unanswered - 1, 0)
+        if not unanswered:
+            self._tpdos.note(f"an SDO answer from {name} to no request")  # type: ignore[union-attr]
 
     def write(self, device: Device | str, index: int, subindex: int, value: float,
               scale: Scale | None = None) -> int:
