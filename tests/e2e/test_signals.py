@@ -91,7 +91,12 @@ def test_a_signal_at_any_moment_of_start_up_or_shutdown_leaves_no_process(tmp_pa
             if proc.poll() is None:
                 proc.send_signal(sig)
         code = proc.wait(120)  # a hang fails here
-    assert code in (128 + first, -first), code
+    # 128 + the first signal handled, or killed by it before the demo's handlers are in. With a
+    # second signal either may be that one: two that arrive before Python runs either handler
+    # are handled in signal-number order (CPython), and a start-up still in a C import when the
+    # first (SIGINT: KeyboardInterrupt) comes can be ended by the second's default action
+    sent = {first} if second is None else {first, second[0]}
+    assert code in {128 + s for s in sent} | {-s for s in sent}, code
     wait_until(lambda: not marked(tag), 60, what="every process of the tree gone")
     if second is None and (out / "stack.json").is_file():  # a forced exit leaves it as it was
         assert json.loads((out / "stack.json").read_text())["pids"] == {}

@@ -85,10 +85,16 @@ def test_the_set_has_one_agent_and_one_simulator_per_robot_and_no_fleet_wide_one
     for robot in ROBOTS:
         for role in ROBOT_ROLES:
             (policy,) = [p for p in acl["policies"] if p["subjects"] == [f"{role}-{robot}"]]
-            keys = {k for i in policy["rules"] for k in rules[i]["key_exprs"]}
-            own_ros = {f"0/{robot}/**", f"@ros2_lv/0/*/*/*/*/*/%{robot}/**"}  # its ROS namespace only
+            # what it may send or serve: its own keys and its ROS namespace only
+            keys = {k for i in policy["rules"] for k in rules[i]["key_exprs"]
+                    if rules[i]["messages"] != ["declare_subscriber"] or rules[i]["flows"] != ["egress"]}
+            own_ros = {f"0/{robot}/**", f"@ros2_lv/0/*/*/*/*/*/%{robot}/**"}
             assert keys and all(k.startswith(f"ersac/{robot}/") or k == f"can/{robot}" or k in own_ros
                                 for k in keys), keys
+            # what it is told of: subscribers on its keys, and (an agent) the ROS domain's readers
+            told = {k for i in policy["rules"] for k in rules[i]["key_exprs"]} - keys
+            assert all(k.startswith(f"ersac/{robot}/") or k in (f"can/{robot}", "0/**") for k in told), told
+            assert ("0/**" in told) == (role == "agent")
 
 
 @given(st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,20}", fullmatch=True), st.sampled_from(ROBOT_ROLES))
