@@ -24,6 +24,7 @@ from ersac_hil.ros2.options import Ros2Options
 from ersac_hil.ros2.writer import NICE
 from ersac_hil.zenoh_session import EmbeddedRouter
 from firmware_sim.nodes.simrobot import SimulatedRobot
+from helpers.timing import PATIENCE_S
 from helpers.waiting import wait_until
 from protocol.can.busconfig import BusConfig
 from protocol.robot import default_description
@@ -209,6 +210,9 @@ def test_a_feed_that_falls_behind_drops_counts_and_reports(tmp_path, caplog):
                 [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
                            session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
                 feed = agent.feed
+                # the reply names the file at once; the writer process (niceness +10) renames it
+                # when whole, and a stop gives a starved writer only 5 s
+                wait_until(lambda: (tmp_path / reply.mcap).is_file(), PATIENCE_S * 6, what="the whole MCAP file")
     finally:
         robot.close()
     with open(tmp_path / reply.mcap, "rb") as f:
