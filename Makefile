@@ -22,9 +22,10 @@ demo: $(STAMP)
 	$(BIN)/ersac-hil demo
 
 # one worker per core, a test file per worker at a time (module fixtures set up once); much of
-# the suite waits on processes and Zenoh, so two workers halve it on two cores
+# the suite waits on processes and Zenoh, so two workers halve it on two cores; the 25 slowest
+# tests are listed at the end (where the suite's time goes)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --dist loadfile
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
 
 # build the wheel, install it into a fresh venv, smoke-test it from outside the tree (CI runs it)
 wheel-smoke:

@@ -47,8 +47,11 @@ speaks only for itself).
 Everything else is denied: a denied put is dropped, a denied query gets no reply, a denied
 queryable or liveliness token is declared locally but nothing is ever routed to it. So only
 the agent's identity can answer ``episode/run`` and only an operator can steer the learner.
-Rules are written per direction as the router sees a client's link: ``ingress`` is what
-the client sends, ``egress`` what the router delivers to it.
+Rules are per direction as the router sees a client's link: ``ingress`` is what the client
+sends, ``egress`` what the router delivers to it. Only the ingress is written down; each
+role's egress is derived from it (``_TOLD``: a querier is told of queryables and replies, a
+publisher of subscribers, a subscriber gets puts, a queryable gets queries, a liveliness reader
+gets tokens), so granting a role something to send cannot forget what it must hear back.
 """
 from __future__ import annotations
 
@@ -74,77 +77,75 @@ _EPISODES, _ERROR = "learner/episodes", "learner/error"
 _READ = (_EPISODES, _ERROR, _DONE)
 _LIVELINESS_READ = ("declare_liveliness_subscriber", "liveliness_query")
 
-#: role -> flow -> [(message kinds, key suffixes under <prefix>/<robot>/)].
-PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]] = {
-    "router": {"ingress": [], "egress": []},
-    "simulator": {"ingress": [], "egress": []},
-    "daemon": {
-        "ingress": [
-            (("query",), (_RUN,)),
-            (_LIVELINESS_READ, (_ALIVE, _SESSION)),
-            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT, _EPISODES)),
-            (("declare_subscriber",), (_KAPPA, _WEIGHTS)),
-            (("put",), (_EPISODES, _ERROR)),
-        ],
-        "egress": [
-            (("declare_queryable", "reply"), (_RUN,)),
-            (("liveliness_token", "reply"), (_ALIVE, _SESSION)),
-            (("query",), (_STATE, _CRITIC, _SELECT, _EPISODES)),
-            (("put",), (_KAPPA, _WEIGHTS)),
-            (("declare_subscriber",), (_EPISODES, _ERROR)),
-        ],
-    },
-    "agent": {
-        "ingress": [
-            (("declare_queryable", "reply"), (_RUN,)),
-            (("liveliness_token",), (_ALIVE, _SESSION)),
-            (("put",), (_DONE,)),
-            (("declare_subscriber",), (_GO,)),
-        ],
-        "egress": [
-            (("query",), (_RUN,)),
-            (("declare_subscriber",), (_DONE,)),
-            (("put",), (_GO,)),
-        ],
-    },
-    "operator": {
-        "ingress": [
-            (("put",), (_KAPPA, _WEIGHTS, _GO)),
-            (("query",), (_STATE, _CRITIC, _SELECT, _EPISODES)),
-            (("declare_subscriber",), _READ),
-            (_LIVELINESS_READ, (_ALIVE,)),
-        ],
-        "egress": [
-            (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT, _EPISODES)),
-            (("declare_subscriber",), (_KAPPA, _WEIGHTS, _GO)),
-            (("put",), _READ),
-            (("liveliness_token", "reply"), (_ALIVE,)),
-        ],
-    },
-    "observer": {
-        "ingress": [
-            (("query",), (_STATE, _CRITIC, _EPISODES)),
-            (("declare_subscriber",), _READ),
-            (_LIVELINESS_READ, (_ALIVE,)),
-        ],
-        "egress": [
-            (("declare_queryable", "reply"), (_STATE, _CRITIC, _EPISODES)),
-            (("put",), _READ),
-            (("liveliness_token", "reply"), (_ALIVE,)),
-        ],
-    },
+#: What the router delivers to a client because of what the client sends (Zenoh 1.10 access
+#: control filters both directions): a querier is told of queryables and gets their replies; a
+#: publisher is told of subscribers (without it, write-side filtering drops its samples); a
+#: subscriber gets the puts; a queryable gets the queries; a liveliness reader gets the tokens
+#: and the replies to its liveliness queries. A liveliness token needs nothing back.
+_TOLD: dict[str, tuple[str, ...]] = {
+    "query": ("declare_queryable", "reply"),
+    "put": ("declare_subscriber",),
+    "declare_subscriber": ("put",),
+    "declare_queryable": ("query",),
+    "declare_liveliness_subscriber": ("liveliness_token", "reply"),
+    "liveliness_query": ("liveliness_token", "reply"),
+}
+
+
+def _told(messages: Sequence[str]) -> tuple[str, ...]:
+    """The message kinds the router must deliver to a client that sends ``messages``."""
+    told: list[str] = []
+    for message in messages:
+        told += [m for m in _TOLD.get(message, ()) if m not in told]
+    return tuple(told)
+
+
+def _with_egress(ingress: list[tuple[tuple[str, ...], tuple[str, ...]]]) -> dict[str, list]:
+    """``{"ingress": ingress, "egress": ...}``: each grant's egress derived by :func:`_told`."""
+    return {"ingress": ingress,
+            "egress": [(told, keys) for messages, keys in ingress if (told := _told(messages))]}
+
+
+#: role -> flow -> [(message kinds, key suffixes under <prefix>/<robot>/)]. Only what a role may
+#: send is written down (``ingress``); what it is told of (``egress``) follows from it.
+_SENDS: dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]] = {
+    "router": [],
+    "simulator": [],
+    "daemon": [
+        (("query",), (_RUN,)),
+        (_LIVELINESS_READ, (_ALIVE, _SESSION)),
+        (("declare_queryable", "reply"), (_STATE, _CRITIC, _SELECT, _EPISODES)),
+        (("declare_subscriber",), (_KAPPA, _WEIGHTS)),
+        (("put",), (_EPISODES, _ERROR)),
+    ],
+    "agent": [
+        (("declare_queryable", "reply"), (_RUN,)),
+        (("liveliness_token",), (_ALIVE, _SESSION)),
+        (("put",), (_DONE,)),
+        (("declare_subscriber",), (_GO,)),
+    ],
+    "operator": [
+        (("put",), (_KAPPA, _WEIGHTS, _GO)),
+        (("query",), (_STATE, _CRITIC, _SELECT, _EPISODES)),
+        (("declare_subscriber",), _READ),
+        (_LIVELINESS_READ, (_ALIVE,)),
+    ],
+    "observer": [
+        (("query",), (_STATE, _CRITIC, _EPISODES)),
+        (("declare_subscriber",), _READ),
+        (_LIVELINESS_READ, (_ALIVE,)),
+    ],
 }
 
 # -- safety: the e-stop (an operator's put only) and the agent's state (anyone who reads) ----
 _ESTOP, _AGENT_STATE = "agent/estop", "agent/state"
-PERMISSIONS["agent"]["ingress"] += [(("declare_subscriber",), (_ESTOP,)),
-                                    (("declare_queryable", "reply"), (_AGENT_STATE,))]
-PERMISSIONS["agent"]["egress"] += [(("put",), (_ESTOP,)), (("query",), (_AGENT_STATE,))]
-PERMISSIONS["operator"]["ingress"].append((("put",), (_ESTOP,)))
-PERMISSIONS["operator"]["egress"].append((("declare_subscriber",), (_ESTOP,)))
+_SENDS["agent"] += [(("declare_subscriber",), (_ESTOP,)), (("declare_queryable", "reply"), (_AGENT_STATE,))]
+_SENDS["operator"].append((("put",), (_ESTOP,)))
 for _role in ("daemon", "operator", "observer"):
-    PERMISSIONS[_role]["ingress"].append((("query",), (_AGENT_STATE,)))
-    PERMISSIONS[_role]["egress"].append((("declare_queryable", "reply"), (_AGENT_STATE,)))
+    _SENDS[_role].append((("query",), (_AGENT_STATE,)))
+
+PERMISSIONS: dict[str, dict[str, list[tuple[tuple[str, ...], tuple[str, ...]]]]] = {
+    role: _with_egress(grants) for role, grants in _SENDS.items()}
 
 
 # ROS 2 over rmw_zenoh (``ersac_hil.ros2``, ``agent --ros2``): outside ``<prefix>/<robot>/``,
@@ -170,16 +171,17 @@ def ros2_rules(name: str, role: str, domain: int = 0, robot: str | None = None) 
         # @ros2_lv/<domain>/<zid>/<nid>/<eid>/<kind>/<enclave>/<namespace>/...
         data, tokens = [f"{domain}{namespace}/**"], [f"@ros2_lv/{domain}/*/*/*/*/*/{mangle(namespace)}/**"]
     if role in ROS2_PUBLISHERS:
-        # the router tells the agent of the readers' subscribers (any on the domain: a reader's
-        # ``<domain>/**`` is no subset of ``<domain>/<robot>/**``); without it the agent's
-        # publishers (write-side filtering) drop every sample after the first
-        grants = [("ingress", ("put",), data), ("ingress", ("liveliness_token",), tokens),
-                  ("egress", ("declare_subscriber",), [f"{domain}/**"])]
+        sends = [(("put",), data), (("liveliness_token",), tokens)]
     elif role in ROS2_READERS:
-        grants = [("ingress", ("declare_subscriber",), data), ("ingress", _LIVELINESS_READ, tokens),
-                  ("egress", ("put",), data), ("egress", ("liveliness_token", "reply"), tokens)]
+        sends = [(("declare_subscriber",), data), (_LIVELINESS_READ, tokens)]
     else:
         return []
+    grants = [("ingress", messages, keys) for messages, keys in sends]
+    for messages, keys in sends:
+        if told := _told(messages):
+            # a publisher is told of the readers' subscribers anywhere on the domain: a reader's
+            # ``<domain>/**`` is no subset of ``<domain>/<robot>/**``
+            grants.append(("egress", told, [f"{domain}/**"] if "put" in messages else keys))
     return [{"id": f"{name}-ros2-{i}", "permission": "allow", "flows": [flow], "messages": list(messages),
              "key_exprs": keys} for i, (flow, messages, keys) in enumerate(grants)]
 

@@ -123,6 +123,42 @@ def test_permitted_is_the_routers_own_ingress_rules():
                 assert permitted(role, message, suffix) == allowed, (role, message, suffix)
 
 
+# what one side sends -> what the router must deliver to each side of the exchange
+_EXCHANGES = [  # (sender's kind, receiver's kind, told to the sender, delivered to the receiver)
+    ("put", "declare_subscriber", "declare_subscriber", "put"),
+    ("query", "declare_queryable", "declare_queryable", "query"),
+    ("query", "declare_queryable", "reply", "query"),
+    ("liveliness_token", "declare_liveliness_subscriber", None, "liveliness_token"),
+]
+
+
+@pytest.mark.parametrize("robots", [(), ("ubot1",)])
+def test_every_exchange_the_roles_may_start_is_delivered_both_ways(robots):
+    """Wherever one identity may send (put, query, a token) and another may receive it on the
+    same key, the router's egress rules deliver it to the receiver and tell the sender of the
+    receiver (subscriber, queryable), and return the replies: a grant to send is never left
+    without what it needs back (the ROS 2 agent once dropped every sample after the first)."""
+    acl = access_control(robots=robots)
+    rules = {r["id"]: r for r in acl["rules"]}
+    grants = {p["subjects"][0]: [rules[i] for i in p["rules"]] for p in acl["policies"]}
+
+    def allows(name, flow, message, key):
+        return any(flow in r["flows"] and message in r["messages"] and key in r["key_exprs"]
+                   for r in grants.get(name, []))
+
+    keys = {k for r in acl["rules"] for k in r["key_exprs"]}
+    checked = 0
+    for sends, receives, told, delivered in _EXCHANGES:
+        for key in keys:
+            for a in grants:
+                for b in grants:
+                    if a != b and allows(a, "ingress", sends, key) and allows(b, "ingress", receives, key):
+                        assert allows(b, "egress", delivered, key), (b, delivered, key)
+                        assert told is None or allows(a, "egress", told, key), (a, told, key)
+                        checked += 1
+    assert checked > 20
+
+
 @pytest.mark.parametrize("argv, refusal", [
     (("kappa", "set", "0.5"), "observer may not set kappa"),
     (("weights", "set", "damage=5"), "observer may not set the weights"),
