@@ -43,6 +43,9 @@ def register(subparsers) -> None:
                         "setpoint limits come from it, and on a physical bus the commissioning record")
     p.add_argument("--commission-record", dest="commission_record", metavar="FILE",
                    help="the record 'ersac-hil commission' wrote (default: the state directory, docs/deploy.md)")
+    p.add_argument("--keep-awake", dest="keep_awake", action="store_true",
+                   help="real time only: one SCHED_IDLE spinning child per core keeps idle cores from "
+                        "halting (virtual machines, kernels without a cpuidle driver; docs/performance.md)")
     p.add_argument("--period-ms", type=positive_float, default=None,
                    help="control period (default: the description's SYNC period, 5 ms)")
     p.add_argument("--deadline-ms", type=positive_float, default=250.0,
@@ -94,6 +97,7 @@ def _run(args: argparse.Namespace) -> int:
     from ersac_hil.ros2.options import from_args as ros2_options
     from protocol.can.busconfig import BusConfigError, parse_bus_kwargs, resolve_bus_config
 
+    awake = None  # KeepAwake of --keep-awake
     try:
         bus = resolve_bus_config(args.bus_interface, args.bus_channel, args.bitrate,
                                  parse_bus_kwargs(args.bus_kwargs), default_bitrate=args.loaded.bus.bitrate)
@@ -103,9 +107,15 @@ def _run(args: argparse.Namespace) -> int:
         timing = BusTiming(period_s=period_ms / 1000.0, deadline_s=args.deadline_ms / 1000.0,
                            heartbeat_timeout_s=args.heartbeat_timeout_ms / 1000.0,
                            realtime=args.realtime or real)
+        if args.keep_awake and not timing.realtime:
+            raise ValueError("--keep-awake is for real time (--realtime or a physical bus); lock-step never "
+                             "waits on a timer")
         if timing.realtime:  # before the bus and the Zenoh session exist: their threads inherit it
-            from protocol.can.realtime import request_realtime
+            from protocol.can.realtime import KeepAwake, request_realtime
             print(f"agent: {request_realtime()}", flush=True)
+            if args.keep_awake:
+                awake = KeepAwake()
+                print(f"agent: {awake.start()}", flush=True)
         config = AgentConfig(robot=args.robot, prefix=args.prefix, bus=bus,
                              zenoh_connect=tuple(args.zenoh or ()), zenoh_mode=args.mode,
                              zenoh_config=args.zenoh_config, zenoh_insecure=args.insecure,
@@ -121,6 +131,8 @@ def _run(args: argparse.Namespace) -> int:
                        mode=config.zenoh_mode)  # refuse a bad or insecure session config up front
         service = AgentService(config)
     except (BusConfigError, ValueError) as exc:
+        if awake is not None:
+            awake.close()
         return fail("ersac-hil agent", str(exc))
 
     class _Announcing:
@@ -144,6 +156,9 @@ def _run(args: argparse.Namespace) -> int:
     except (ZenohSessionError, AgentFault) as exc:
         print(f"ersac-hil agent: {exc}", flush=True)
         return 1
+    finally:
+        if awake is not None:
+            awake.close()
 
 
 def _pacing_line(pacing: str, real: bool) -> str:

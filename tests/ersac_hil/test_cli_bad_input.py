@@ -51,6 +51,8 @@ BAD_INPUT: dict[str, list[tuple[tuple[str, ...], str]]] = {
          "lock-step refused on socketcan:can0: socketcan can0 is a physical CAN bus"),
         (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--lockstep",
           "--realtime"), "not allowed with argument"),
+        (("--robot", "r", *Z, "--bus-interface", "virtual", "--bus-channel", "x", "--keep-awake"),
+         "--keep-awake is for real time"),
     ],
     "commission": [(("--description", "{tmp}/none.toml", "--bus-interface", "virtual", "--bus-channel", "x"),
                     "--description"),

@@ -1,5 +1,6 @@
 """request_realtime: SCHED_FIFO for every thread of the process where permitted, a clear
-message and normal scheduling where not (run in child processes: the policy is process-wide)."""
+message and normal scheduling where not (run in child processes: the policy is process-wide);
+the PM QoS wake-up latency request; KeepAwake's spinning SCHED_IDLE children."""
 from __future__ import annotations
 
 import os
@@ -110,3 +111,80 @@ def test_gc_paused_switches_the_collector_off_inside_and_back_as_it_was():
     with pytest.raises(RuntimeError), gc_paused():
         raise RuntimeError("the loop failed")
     assert gc.isenabled()
+
+
+QOS = (
+    "import os, struct, sys\n"
+    "from protocol.can.realtime import PM_QOS_DEVICE, hold_wakeup_latency\n"
+    "print(hold_wakeup_latency(sys.argv[1]))\n"
+    "print(hold_wakeup_latency(PM_QOS_DEVICE))\n"
+    "if os.access(PM_QOS_DEVICE, os.R_OK):\n"
+    "    with open(PM_QOS_DEVICE, 'rb') as f:\n"
+    "        print(struct.unpack('=i', f.read(4))[0])\n"
+)
+
+
+def test_the_wake_up_latency_request_is_held_or_refused_with_a_reason(tmp_path):
+    out = subprocess.run([sys.executable, "-c", QOS, str(tmp_path / "none")], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert lines[0] == f"no {tmp_path / 'none'}: idle states as the kernel chooses"
+    if lines[1] == "CPU wake-up latency held at 0 us (PM QoS)":
+        assert lines[2] == "0"  # the kernel's aggregate request while this process holds it
+    else:
+        assert "idle states as the kernel chooses" in lines[1]
+
+
+AWAKE = (
+    "import os, sys, time\n"
+    "from protocol.can.realtime import KeepAwake\n"
+    "awake = KeepAwake(2)\n"
+    "print(awake.start(), flush=True)\n"
+    "print(*awake.pids, flush=True)\n"
+    "if sys.argv[1] == 'close':\n"
+    "    sys.stdin.readline(); awake.close(); print(awake.pids, flush=True)\n"
+    "else:\n"
+    "    time.sleep(60)\n"
+)
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1].startswith("Z")  # a zombie waiting for init is gone too
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE") or not os.path.isdir("/proc"), reason="no SCHED_IDLE or /proc")
+@pytest.mark.parametrize("how", ["close", "parent killed"])
+def test_keep_awake_spins_under_sched_idle_and_leaves_no_child(how):
+    import signal
+
+    from helpers.waiting import wait_until
+    proc = subprocess.Popen([sys.executable, "-c", AWAKE, how.split()[0]], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True,
+                            cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
+    try:
+        assert proc.stdout.readline().strip() == "keep-awake: 2 SCHED_IDLE spinner(s) keep idle cores from halting"
+        pids = [int(p) for p in proc.stdout.readline().split()]
+        assert len(pids) == 2
+        wait_until(lambda: {os.sched_getscheduler(pid) for pid in pids} == {os.SCHED_IDLE}, timeout_s=30,
+                   what="both spinners under SCHED_IDLE")
+        if how == "close":
+            proc.stdin.write("close\n")
+            proc.stdin.flush()
+            assert proc.stdout.readline().strip() == "()" and all(_gone(pid) for pid in pids)
+        else:
+            proc.send_signal(signal.SIGKILL)
+            wait_until(lambda: all(_gone(pid) for pid in pids), timeout_s=30, what="spinners gone with their parent")
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+
+
+def test_keep_awake_refuses_no_cores():
+    from protocol.can.realtime import KeepAwake
+    with pytest.raises(ValueError, match="at least one core"):
+        KeepAwake(0)
