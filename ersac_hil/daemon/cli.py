@@ -41,6 +41,18 @@ def _weight(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
 
 
+class _Renamed(argparse.Action):
+    """A renamed flag: refused with the new spelling (argparse's usage error, exit 2)."""
+
+    def __init__(self, *args: Any, new: str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.new = new
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        parser.error(f"{option_string} was renamed: use {self.new}")
+
+
 def _fail(message: str, code: int = 2) -> int:
     print(f"ersac-hil: {message}", file=sys.stderr, flush=True)
     return code
@@ -61,7 +73,7 @@ def _daemon(args: argparse.Namespace) -> int:
         "robot": args.robot[0] if args.robot else None,
         "fleet": tuple(args.robot[1:]) if args.robot and len(args.robot) > 1 else None,
         "batch": args.batch, "interleave_every": args.interleave_every, "learner": args.learner, "prior": args.prior,
-        "prior_critic": True if args.prior_critic else None, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
+        "prior_use": args.prior_use, "prefix": args.prefix, "task": args.task, "kappa": args.kappa,
         "episodes": args.episodes, "seed": args.seed, "theta0": args.theta0, "sigma": args.sigma,
         "eta": args.eta, "epsilon": args.epsilon, "lr_range": args.lr_range,
         "zenoh": tuple(args.zenoh) if args.zenoh else None, "zenoh_config": args.zenoh_config,
@@ -323,8 +335,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulator prior of a new run: a landscape JSON, a reproduce directory or a store "
                         "of simulated episodes of the task; start from its optimum for kappa, drop it if "
                         "the robot's warm-up episodes disagree (docs/learner.md)")
-    p.add_argument("--prior-critic", action="store_true",
-                   help="with a landscape --prior: also the critic's prior mean (residual model; docs/learner.md)")
+    p.add_argument("--prior-use", dest="prior_use", choices=("start", "critic"),
+                   help="what --prior gives the run: start (default) the start and its check; critic also, "
+                        "with a landscape, the critic's prior mean (residual model; docs/learner.md)")
+    p.add_argument("--prior-critic", action=_Renamed, nargs=0, help=argparse.SUPPRESS, new="--prior-use critic")
     p.add_argument("--prefix", help=f"key prefix (default {DEFAULT_PREFIX})")
     p.add_argument("--task", choices=("bracing", "lifting"), help="task (default bracing)")
     p.add_argument("--kappa", type=float, help="risk sensitivity (default 0; > 0 risk averse)")

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 from msgspec import Meta
@@ -106,6 +106,10 @@ def task_defaults(task: str) -> TaskDefaults:
 
 
 Kappa = Annotated[float, Meta(ge=KAPPA_MIN, le=KAPPA_MAX)]
+#: What a simulator prior is used for (``DaemonConfig.prior_use``).
+PriorUse = Literal["start", "critic"]
+#: Settings that were renamed: the old key -> the new spelling (refused with this hint).
+RENAMED: dict[str, str] = {"prior_critic": 'prior_use = "critic"'}
 Seconds = Annotated[float, Meta(gt=0.0, le=86_400.0)]
 
 
@@ -132,10 +136,11 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             simulated optimum for its kappa (unless ``theta0`` is given) and drops the prior
             when the robot's warm-up episodes disagree with it (docs/learner.md); read when the
             run is created, stored with it, ignored on resume.
-        prior_critic: with a landscape ``prior`` (1-D tasks), also make it the critic's prior
-            mean while the prior is kept (the residual model, docs/learner.md "Simulator
-            prior"); off by default: measured worse than the start alone where the simulated
-            optimum is wrong by 0.2.
+        prior_use: what the ``prior`` gives the run (``--prior-use``): ``start`` (default) the
+            start and its check after the warm-up; ``critic`` also, with a landscape prior of a
+            1-D task, the critic's prior mean while the prior is kept (the residual model,
+            docs/learner.md "Simulator prior"; not the default: measured worse than the start
+            alone where the simulated optimum is wrong by 0.2). Given without a ``prior``: refused.
         learner: named learner settings (``ersac_hil.learner.presets``: ``paper``, ``guarded``,
             ``select``); ``None``: the task's default (bracing ``select``, lifting ``guarded``).
         prefix: key prefix (default ``ersac``).
@@ -178,7 +183,7 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
     interleave_every: Annotated[int, Meta(ge=0, le=1000)] | None = None
     learner: str | None = None
     prior: str | None = None
-    prior_critic: bool = False
+    prior_use: PriorUse = "start"
     task: TaskName = "bracing"
     kappa: Kappa = 0.0
     episodes: Annotated[int, Meta(ge=1, le=1_000_000)] | None = None
@@ -254,6 +259,8 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             spec.check_names(self.weights, "weights", complete=False)
             weights.update(self.weights)
         set_("weights", {k: weights[k] for k in spec.term_names})
+        if self.prior is None and "prior_use" in self.explicit:
+            raise InvalidField("prior_use", f"{self.prior_use!r} needs a prior (--prior PATH)")
         if self.prior is not None:
             from .prior import PriorError, load_prior
             try:
@@ -325,6 +332,9 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         ConfigError: unreadable file, invalid TOML, unknown key.
     """
     data = read_toml(path, ConfigError, "config file ")
+    renamed = sorted(set(data) & set(RENAMED))
+    if renamed:
+        raise ConfigError(f"config file {path}: {renamed[0]} was renamed: use {RENAMED[renamed[0]]}")
     unknown = sorted(set(data) - (_FIELD_NAMES - {"explicit"}))
     if unknown:
         raise ConfigError(f"config file {path}: unknown keys {unknown}; known: {sorted(_FIELD_NAMES)}")

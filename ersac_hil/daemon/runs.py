@@ -133,7 +133,7 @@ def open_run(store: Store, config: DaemonConfig) -> tuple[RunRecord, DaemonConfi
         if config.prior is not None:
             from .prior import load_prior
             prior = load_prior(config.prior, config.task, config.kappa, config.weights)
-            if not config.prior_critic:  # the landscape is what makes it the critic's prior
+            if config.prior_use != "critic":  # the landscape is what makes it the critic's prior
                 prior = dataclasses.replace(prior, landscape=None)
             settings["prior"] = prior.to_dict()
             if "theta0" not in config.explicit:

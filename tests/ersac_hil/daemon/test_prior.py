@@ -5,13 +5,16 @@ default start and recovers)."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ersac_hil.daemon.config import ConfigError, DaemonConfig, merge
+from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
 from ersac_hil.daemon.prior import PriorError, load_prior
 from ersac_hil.daemon.runs import rebuild_engine
 from ersac_hil.daemon.store import Store
@@ -19,6 +22,7 @@ from ersac_hil.learner.prior import SimPrior
 from ersac_hil.reproduce.views import history
 from helpers.synthetic_agent import true_cost
 
+ROOT = Path(__file__).resolve().parents[3]
 GRID = np.round(np.arange(0.0, 1.0001, 0.05), 2)
 
 
@@ -54,6 +58,33 @@ def test_a_bad_prior_is_refused_in_one_line_naming_it(tmp_path, text, says):
         merge({}, {"robot": "r", "prior": str(f)})
 
 
+def test_prior_use_is_one_option_over_the_prior(tmp_path):
+    f = landscape(tmp_path / "l.json", true_cost)
+    assert merge({}, {"robot": "r", "prior": str(f)}).prior_use == "start"
+    assert merge({}, {"robot": "r", "prior": str(f), "prior_use": "critic"}).prior_use == "critic"
+    toml = tmp_path / "d.toml"
+    toml.write_text(f'robot = "r"\nprior = "{f}"\nprior_use = "critic"\n')
+    assert merge(load_toml(toml), {}).prior_use == "critic"
+    with pytest.raises(ConfigError, match="prior_use.*needs a prior"):
+        merge({}, {"robot": "r", "prior_use": "critic"})
+    with pytest.raises(ConfigError, match="prior_use"):
+        merge({}, {"robot": "r", "prior": str(f), "prior_use": "both"})
+
+
+def test_the_old_spelling_is_refused_with_the_new_one(tmp_path):
+    f = landscape(tmp_path / "l.json", true_cost)
+    toml = tmp_path / "old.toml"
+    toml.write_text(f'robot = "r"\nprior = "{f}"\nprior_critic = true\n')
+    with pytest.raises(ConfigError, match='prior_critic was renamed: use prior_use = "critic"'):
+        load_toml(toml)
+    done = subprocess.run([sys.executable, "-m", "ersac_hil.cli", "daemon", "--robot", "u", "--prior", str(f),
+                           "--prior-critic", "--db", str(tmp_path / "x.db")], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "--prior-critic was renamed: use --prior-use critic" in done.stderr
+    assert not (tmp_path / "x.db").exists()
+
+
 @settings(max_examples=50, deadline=None)
 @given(st.floats(1.0, 100.0), st.floats(0.1, 10.0), st.integers(0, 2**32 - 1))
 def test_costs_drawn_as_the_simulator_says_are_consistent_far_off_ones_are_not(mean, std, seed):
@@ -70,10 +101,10 @@ def test_costs_drawn_as_the_simulator_says_are_consistent_far_off_ones_are_not(m
 
 
 def test_a_right_prior_starts_the_run_at_the_simulated_optimum(router, agent_factory, daemon_factory, tmp_path):
-    """With --prior-critic the landscape is also the critic's prior mean."""
+    """With --prior-use critic the landscape is also the critic's prior mean."""
     f = landscape(tmp_path / "l.json", true_cost)
     agent_factory("pri")
-    daemon = daemon_factory("pri", episodes=14, kappa=2.0, prior=str(f), prior_critic=True)
+    daemon = daemon_factory("pri", episodes=14, kappa=2.0, prior=str(f), prior_use="critic")
     assert daemon.finished.wait(60) and daemon.exit_code == 0
     h = history(daemon.config.db)
     best = GRID[np.argmin([F2(t) for t in GRID])]
@@ -95,7 +126,7 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     wrong = landscape(tmp_path / "wrong.json", lambda t: (8.0 - 4.0 * t, 0.3))
     agent_factory("wro")
     agent_factory("nop")
-    with_prior = daemon_factory("wro", episodes=30, kappa=2.0, prior=str(wrong), learner="guarded", prior_critic=True)
+    with_prior = daemon_factory("wro", episodes=30, kappa=2.0, prior=str(wrong), learner="guarded", prior_use="critic")
     without = daemon_factory("nop", episodes=30, kappa=2.0, learner="guarded")
     assert with_prior.finished.wait(120) and without.finished.wait(120)
     assert with_prior.exit_code == 0 == without.exit_code
@@ -114,7 +145,7 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     assert F2(float(h.final_policy[0])) <= F2(float(h0.final_policy[0])) + 0.5
 
 
-def test_without_prior_critic_the_prior_gives_the_start_only(router, agent_factory, daemon_factory, tmp_path):
+def test_by_default_the_prior_gives_the_start_only(router, agent_factory, daemon_factory, tmp_path):
     f = landscape(tmp_path / "l.json", true_cost)
     agent_factory("sta")
     daemon = daemon_factory("sta", episodes=12, kappa=2.0, prior=str(f))
