@@ -41,7 +41,7 @@ yet.) ``--with-prior``: also the default learner with ``--prior`` (the landscape
 
 ``gaps``: the simulator prior on surrogate robots that differ from the simulator (``GAPS``:
 the landscape's damage rate moved in theta, the undamaged cost scaled; the simulator is the
-landscape), kappa 2, the ``select`` learner in-process as the daemon runs it (the prior's
+landscape), kappa 2, the default bracing learner in-process as the daemon runs it (the prior's
 start, its consistency check after the warm-up, the final selection): episodes until F(theta,
 2) of the policy stays within 5 % of the robot's optimum, damage events while learning, for
 no prior, the prior's start only, and the start with the critic's prior mean. Resumable
@@ -97,14 +97,24 @@ REPEATS = 3
 #: Cost of a damaged episode in the surrogate (the task's damage weight 10 x the broken arm's
 #: extra terms; sized so that mean and std of the landscape are both matched at 0.5-0.75).
 DAMAGE_COST = 90.0
-#: Learner settings screened in-process (``surrogate``): ERSAC keyword arguments, and whether
-#: the final policy is the offline selection (the ``select`` preset's final step).
+#: Learner settings screened in-process (``surrogate``): ERSAC keyword arguments (``greedy``:
+#: ``GreedyRule`` fields; ``theta0``: another start), and whether the final policy is the
+#: offline selection at a kappa > 0 (the ``select`` preset's final step). Every run also
+#: reports the offline selection at every kappa (column "selection at every kappa").
 SURROGATE: dict[str, tuple[dict, bool]] = {
     "paper": ({"max_step": None}, False),
     "guarded": ({}, False),
     "guarded+final-selection": ({}, True),
     "interleaved": ({"interleave_every": 1}, False),
     "select": ({"interleave_every": 1}, True),
+    # the interleaved search without its confidence gate (z 0) or with a 1-sd gate
+    "select-z0": ({"interleave_every": 1, "greedy": {"z": 0.0}}, True),
+    "select-z1": ({"interleave_every": 1, "greedy": {"z": 1.0}}, True),
+    # a trust-region step along F~: the argmin of F~ within R sigma of theta, every update
+    "trust-1": ({"interleave_every": 1, "greedy": {"z": 0.0, "radius": 1.0, "min_move": 0.0, "around": "theta"}}, True),
+    "trust-2": ({"interleave_every": 1, "greedy": {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}}, True),
+    "trust-1-z1": ({"interleave_every": 1, "greedy": {"z": 1.0, "radius": 1.0, "min_move": 0.0, "around": "theta"}}, True),
+    "select-start-0.5": ({"interleave_every": 1, "theta0": 0.5}, True),
 }
 
 
@@ -293,8 +303,16 @@ def robot_landscape(land: Landscape, shift: float, scale: float) -> Landscape:
                      np.sqrt(scale**2 * base_var + DAMAGE_COST**2 * pr * (1 - pr)), pr)
 
 
+def default_learner() -> dict:
+    """ERSAC keyword arguments of the daemon's default bracing learner (its preset)."""
+    from ersac_hil.learner.presets import TASK_LEARNER, preset
+
+    p = preset(TASK_LEARNER["bracing"])
+    return {"max_step": p.max_step, "interleave_every": p.interleave_every, "greedy": p.greedy}
+
+
 def _gap_run(job: tuple[str, str, float, int, str | None]) -> dict:
-    """One learning run of the ``select`` learner on the robot of ``gap`` as the daemon makes
+    """One learning run of the default bracing learner on the robot of ``gap`` as the daemon makes
     it (start, warm-up, the prior's consistency check, final selection): the policy mean after
     every episode (the last one the final selection) and the damaged episodes."""
     from threadpoolctl import threadpool_limits
@@ -311,7 +329,7 @@ def _gap_run(job: tuple[str, str, float, int, str | None]) -> dict:
     theta0 = d.theta0 if method == "no prior" else prior.theta
     with threadpool_limits(1, user_api="blas"):
         L = ERSAC(theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed,
-                  interleave_every=1)
+                  **default_learner())
         if method == "start + critic prior":
             L.set_critic_prior(prior.critic_prior())
         rng = np.random.default_rng(10_000 + seed)
@@ -370,7 +388,7 @@ def gaps_bench(args: argparse.Namespace) -> None:
             print(f"gaps: {r['gap']} / {r['method']} / seed {r['seed']} done ({len(done)}/{len(jobs)})", flush=True)
     res = [done[j[:4]] for j in jobs]
     sim = Landscape.load(args.landscape)
-    print(f"gaps: {len(jobs)} runs of {len(seeds)} seeds (45 episodes, kappa 2, the select learner), "
+    print(f"gaps: {len(jobs)} runs of {len(seeds)} seeds (45 episodes, kappa 2, the default learner), "
           f"{(time.monotonic() - t0) / 60:.1f} min, load {load0:.1f} -> {os.getloadavg()[0]:.1f}")
     print("| gap (damage shift, cost scale) | robot optimum (simulated) | method | episodes until F within 5 % "
           "stays, median [IQR] (settled) | damage events while learning, mean | final within 0.1 | prior rejected |")
@@ -397,25 +415,42 @@ def gaps_bench(args: argparse.Namespace) -> None:
         Path(args.out).write_text(json.dumps({"seeds": seeds, "gaps": GAPS, "table": table, "runs": res}, indent=1))
 
 
-def _surrogate_run(job: tuple[str, float, int, str | None]) -> tuple[str, float, int, float, float]:
+def surrogate_learner(method: str, kappa: float, seed: int):  # noqa: ANN201
+    """The ERSAC of ``SURROGATE[method]`` for one bracing run (the task's paper settings)."""
+    from ersac_hil.daemon.config import task_defaults
+    from ersac_hil.learner import ERSAC
+    from ersac_hil.learner.ersac import GreedyRule
+
+    d = task_defaults("bracing")
+    kwargs = dict(SURROGATE[method][0])
+    theta0 = (kwargs.pop("theta0"),) if "theta0" in kwargs else d.theta0
+    if "greedy" in kwargs:
+        kwargs["greedy"] = GreedyRule(**kwargs["greedy"])
+    return ERSAC(theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed, **kwargs)
+
+
+def _surrogate_run(job: tuple[str, float, int, str | None]) -> tuple:
+    """One run: (method, kappa, seed, last iterate, final policy, selection at kappa, CPU s,
+    the policy mean after every episode)."""
     from threadpoolctl import threadpool_limits
 
     from ersac_hil.daemon.config import task_defaults
-    from ersac_hil.learner import ERSAC
 
     method, kappa, seed, path = job
     land = Landscape.load(path)
-    d = task_defaults("bracing")
-    kwargs, final_selection = SURROGATE[method]
+    t0 = time.process_time()
     with threadpool_limits(1, user_api="blas"):
-        L = ERSAC(d.theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed, **kwargs)
+        L = surrogate_learner(method, kappa, seed)
         rng = np.random.default_rng(10_000 + seed)
-        for _ in range(d.episodes):
+        path = []
+        for _ in range(task_defaults("bracing").episodes):
             x = L.ask()
             L.tell(x, surrogate_cost(float(x[0]), land, rng))
+            path.append(float(L.theta[0]))
         last = float(L.theta[0])
-        sel = float(L.select(kappa, pessimism=kappa).theta[0]) if final_selection and kappa > 0 else last
-    return method, kappa, seed, last, sel
+        sel = float(L.select(kappa, pessimism=kappa).theta[0])
+    final = sel if SURROGATE[method][1] and kappa > 0 else last
+    return method, kappa, seed, last, final, sel, time.process_time() - t0, path
 
 
 def surrogate(args: argparse.Namespace) -> None:
@@ -423,20 +458,30 @@ def surrogate(args: argparse.Namespace) -> None:
     seeds, kappas = parse_seeds(args.seeds), [float(k) for k in args.kappas.split(",")]
     methods = args.methods.split(",")
     jobs = [(m, k, s, args.landscape) for m in methods for k in kappas for s in seeds]
-    t0 = time.monotonic()
-    with mp.get_context("fork").Pool(2) as pool:
+    t0, load0 = time.monotonic(), os.getloadavg()[0]
+    with mp.get_context("fork").Pool(args.processes) as pool:
         res = list(pool.imap(_surrogate_run, jobs))
     land = Landscape.load(args.landscape)
-    print(f"surrogate: {len(jobs)} runs of {len(seeds)} seeds, {time.monotonic() - t0:.0f} s")
-    print("| method | kappa | optimum | final policy within 0.1 | median [IQR] | damage rate of the final policies (optimum) |")
-    print("|---|---|---|---|---|---|")
+    print(f"surrogate: {len(jobs)} runs of {len(seeds)} seeds, {time.monotonic() - t0:.0f} s wall, "
+          f"{sum(r[6] for r in res):.0f} s CPU, load average {load0:.1f} -> {os.getloadavg()[0]:.1f}")
+    print("| method | kappa | optimum | final policy within 0.1 | median [IQR] | damage rate of the final policies "
+          "(optimum) | last iterate within 0.1 | selection at every kappa within 0.1 | mean of the last 10 "
+          "policies within 0.1 |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    within = lambda a, opt: int(np.sum(np.abs(a - opt) <= TOLERANCE + 1e-9))  # noqa: E731
     for m in methods:
         for k in kappas:
             opt = land.optimum(k)
-            final = np.array([r[4] for r in res if r[0] == m and r[1] == k])
-            print(f"| {m} | {k:g} | {opt:.2f} | {int(np.sum(np.abs(final - opt) <= TOLERANCE + 1e-9))}/{len(final)} | "
+            rows = [r for r in res if r[0] == m and r[1] == k]
+            last, final, sel = (np.array([r[i] for r in rows]) for i in (3, 4, 5))
+            avg = np.array([np.mean(r[7][-10:]) for r in rows])
+            print(f"| {m} | {k:g} | {opt:.2f} | {within(final, opt)}/{len(final)} | "
                   f"{np.median(final):.2f} [{np.percentile(final, 25):.2f}-{np.percentile(final, 75):.2f}] | "
-                  f"{np.mean([land.damage_at(t) for t in final]):.3f} ({land.damage_at(opt):.3f}) |")
+                  f"{np.mean([land.damage_at(t) for t in final]):.3f} ({land.damage_at(opt):.3f}) | "
+                  f"{within(last, opt)}/{len(last)} | {within(sel, opt)}/{len(sel)} | {within(avg, opt)}/{len(avg)} |")
+    if args.out:
+        Path(args.out).write_text(json.dumps({"seeds": seeds, "runs": [
+            dict(zip(("method", "kappa", "seed", "last", "final", "selection", "cpu_s", "path"), r)) for r in res]}, indent=1))
 
 
 def kappa0_bench(args: argparse.Namespace) -> None:
@@ -613,6 +658,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--kappas", default="2,0")
     sp.add_argument("--seeds", default="0-19")
     sp.add_argument("--methods", default=",".join(SURROGATE))
+    sp.add_argument("--processes", type=int, default=2)
+    sp.add_argument("--out", default=None, help="JSON of every run")
     pp = sub.add_parser("peers", help="CMA-ES, MV-BO, random search against the default learner (bracing)")
     pp.add_argument("--seeds", default="1-20")
     pp.add_argument("--with-prior", action="store_true", help="also the default learner with --prior (the landscape)")

@@ -71,6 +71,7 @@ class Engine:
         """A fresh learner from the run's stored settings (theta0, sigma, eta, kappa, epsilon,
         lr_range, weights, seed)."""
         spec = get_task(task)
+        named = preset(settings.get("learner", LEGACY_LEARNER))
         learner = ERSAC(
             np.asarray(settings["theta0"], dtype=float),
             np.asarray(settings["sigma"], dtype=float),
@@ -81,8 +82,9 @@ class Engine:
             lr_range=tuple(settings["lr_range"]),
             seed=int(settings["seed"]),
             weights=CostWeights(dict(settings["weights"])),
-            max_step=settings.get("max_step", preset(settings.get("learner", LEGACY_LEARNER)).max_step),
+            max_step=settings.get("max_step", named.max_step),
             interleave_every=int(settings.get("interleave_every", 0)),
+            greedy=named.greedy,
         )
         if "prior" in settings:  # the simulator's landscape as the critic's prior mean
             from ersac_hil.learner.prior import SimPrior

@@ -77,6 +77,43 @@ GREEDY_RADIUS = 1.5
 GREEDY_MIN_MOVE = 1.0
 GREEDY_Z = 2.0
 
+GREEDY_AROUND = ("data", "theta")
+
+
+@dataclass(frozen=True)
+class GreedyRule:
+    """How the interleaved search moves (docs/learner.md "Interleaved offline/online search").
+
+    The argmin of F~ on the update's critic is searched within ``radius`` sqrt(d) sigma of
+    ``around``: ``"data"`` the fit's observations within epsilon / 2 of theta (the default),
+    ``"theta"`` theta alone (a trust-region step along F~, at most ``radius`` sqrt(d) sigma per
+    update). theta moves there if the move is at least ``min_move`` sigma in some coordinate
+    and F~(argmin) + ``z`` sd(F~(argmin)) < F~(theta) (``z`` 0: whenever F~ is lower)."""
+
+    z: float = GREEDY_Z
+    radius: float = GREEDY_RADIUS
+    min_move: float = GREEDY_MIN_MOVE
+    around: str = "data"
+
+    def __post_init__(self) -> None:
+        for name in ("z", "radius", "min_move"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) or v < 0:
+                raise InvalidInputError(f"greedy {name} must be finite and >= 0, got {v!r}")
+        if self.radius <= 0:
+            raise InvalidInputError("greedy radius must be > 0")
+        if self.around not in GREEDY_AROUND:
+            raise InvalidInputError(f"greedy around must be one of {GREEDY_AROUND}, got {self.around!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None) -> "GreedyRule":
+        """The rule of a state (``None``: a state saved before the rule had settings)."""
+        return cls() if data is None else cls(**data)
+
+
 STATE_FORMAT = "ersac-hil/ersac-state"
 STATE_VERSION = 1
 
@@ -168,6 +205,7 @@ class ERSAC:
         min_observations: int | None = None,
         max_step: float | None = MAX_STEP,
         interleave_every: int = 0,
+        greedy: GreedyRule | None = None,
     ) -> None:
         b = np.asarray(bounds, dtype=float)
         if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
@@ -204,6 +242,8 @@ class ERSAC:
             raise InvalidInputError("max_step must be > 0 (in units of sigma) or None")
         if isinstance(interleave_every, bool) or not isinstance(interleave_every, numbers.Integral) or interleave_every < 0:
             raise InvalidInputError("interleave_every must be an integer >= 0 (0: off)")
+        if greedy is not None and not isinstance(greedy, GreedyRule):
+            raise InvalidInputError("greedy must be a GreedyRule")
 
         self._d = d
         self._theta = theta
@@ -213,6 +253,7 @@ class ERSAC:
         self._min_obs = int(m)
         self._max_step = None if max_step is None else float(max_step)
         self._interleave = int(interleave_every)
+        self._greedy = GreedyRule() if greedy is None else greedy
         self._skipped: list[tuple[int, str]] = []
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._observations = Observations(d, weights)
@@ -320,6 +361,11 @@ class ERSAC:
     @property
     def weights(self) -> CostWeights:
         return self._observations.weights
+
+    @property
+    def greedy(self) -> GreedyRule:
+        """The interleaved search's move rule (used when ``interleave_every`` > 0)."""
+        return self._greedy
 
     @property
     def local_critic(self) -> LocalCritic:
@@ -504,20 +550,23 @@ class ERSAC:
         """Interleaved search: theta, or the argmin of F~ of this update's critic near theta
         if the critic is confident of the gain there (see ERSAC's module doc)."""
         X = np.asarray(fit.model.X)
-        d = self._d
-        region = X[np.linalg.norm(X - theta, axis=1) <= 0.5 * self._critic.config.epsilon]
+        d, rule = self._d, self._greedy
+        if rule.around == "theta":
+            region = theta[None, :]
+        else:
+            region = X[np.linalg.norm(X - theta, axis=1) <= 0.5 * self._critic.config.epsilon]
         if region.shape[0] == 0:
             return theta, False
-        cfg = SelectionConfig(radius=GREEDY_RADIUS * math.sqrt(d) * float(self._sigma.min()))
+        cfg = SelectionConfig(radius=rule.radius * math.sqrt(d) * float(self._sigma.min()))
         with single_threaded_blas():
             sel = minimise_on_fit(fit, self.bounds, kappa, theta, cfg, region=region)
             here = fit.estimate(theta, kappa)
             there = fit.estimate(sel.theta, kappa)
         # moves below a sigma are left to the gradient steps; confident: sd(F~) from the
         # posterior of J~ and of g (var r~ ~ r~^2 var(g) / 4), measured in docs/learner.md
-        travels = float(np.max(np.abs(sel.theta - theta) / self._sigma)) >= GREEDY_MIN_MOVE
+        travels = float(np.max(np.abs(sel.theta - theta) / self._sigma)) >= rule.min_move
         sd = math.sqrt(max(there.J_var, 0.0) + kappa**2 * there.r**2 * there.g_var / 4.0)
-        if travels and there.F + GREEDY_Z * sd < here.F:
+        if travels and there.F + rule.z * sd < here.F:
             return sel.theta.copy(), True
         return theta, False
 
@@ -595,6 +644,7 @@ class ERSAC:
             "min_observations": self._min_obs,
             "max_step": self._max_step,
             "interleave_every": self._interleave,
+            "greedy": self._greedy.to_dict(),
             "critic": self._critic.config.to_dict(),
             "weights": self._observations.weights.to_dict(),
             "rng": _rng_state_to_json(self._rng),
@@ -626,6 +676,7 @@ class ERSAC:
                 min_observations=state["min_observations"],
                 max_step=state.get("max_step", MAX_STEP),
                 interleave_every=state.get("interleave_every", 0),
+                greedy=GreedyRule.from_dict(state.get("greedy")),
             )
             learner._rng = _rng_from_json(state["rng"])
             if state["pending"] is not None:

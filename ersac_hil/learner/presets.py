@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .ersac import MAX_STEP
+from .ersac import MAX_STEP, GreedyRule
 
 __all__ = ["LearnerPreset", "PRESETS", "TASK_LEARNER", "preset"]
 
@@ -30,12 +30,14 @@ __all__ = ["LearnerPreset", "PRESETS", "TASK_LEARNER", "preset"]
 class LearnerPreset:
     """``max_step`` (sigma units, None: no guard), ``interleave_every`` (0: off),
     ``final_selection`` (at a kappa > 0, adopt the offline selection at the end of the
-    budget, with ``SelectionConfig.pessimism`` = kappa)."""
+    budget, with ``SelectionConfig.pessimism`` = kappa), ``greedy`` (how the interleaved
+    search moves; None: ``GreedyRule()``, the confidence-gated move)."""
 
     name: str
     max_step: float | None
     interleave_every: int
     final_selection: bool
+    greedy: GreedyRule | None = None
 
 
 PRESETS: dict[str, LearnerPreset] = {

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from ersac_hil.learner import ERSAC, InvalidInputError
+from ersac_hil.learner import ERSAC, InvalidInputError, StateError
+from ersac_hil.learner.ersac import GreedyRule
 
 BOUNDS = [[0.0, 1.0]]
 
@@ -120,6 +121,50 @@ def test_interleaved_moves_leave_sub_sigma_moves_to_the_gradient_step() -> None:
     for u in moves:
         stepped = np.clip(u.theta_before - u.step_scale * u.step_size * u.td_error * u.z, *BOUNDS[0])
         assert abs(u.theta_after[0] - stepped[0]) >= 0.1 - 1e-9
+
+
+def test_a_trust_region_step_moves_at_most_its_radius_along_the_critic_and_survives_resume() -> None:
+    """GreedyRule(around="theta"): every offline move stays within radius sigma of the gradient
+    step's theta and goes where this update's F~ is lower; z 0 moves whenever it is lower,
+    so moves are frequent; the rule is part of the state (resume continues bit for bit)."""
+    rule = GreedyRule(z=0.0, radius=1.0, min_move=0.0, around="theta")
+    L = make(interleave_every=1, kappa=2.0, greedy=rule)
+    ups = [u for u in run(L, 30) if not u.warmup]
+    moves = [u for u in ups if u.offline]
+    assert len(moves) >= len(ups) // 2
+    for u in moves:
+        stepped = np.clip(u.theta_before - u.step_scale * u.step_size * u.td_error * u.z, *BOUNDS[0])
+        assert abs(u.theta_after[0] - stepped[0]) <= 0.1 + 1e-9
+    assert L.get_state()["greedy"] == {"z": 0.0, "radius": 1.0, "min_move": 0.0, "around": "theta"}
+    R = resume(L)
+    assert R.greedy == rule
+    xa, xb = L.ask(), R.ask()
+    assert L.tell(xa, 2.0).to_dict() == R.tell(xb, 2.0).to_dict()
+
+
+def test_a_state_saved_before_the_greedy_rule_resumes_with_the_gated_move() -> None:
+    L = make(interleave_every=1)
+    run(L, 12)
+    state = json.loads(json.dumps(L.get_state()))
+    del state["greedy"]
+    assert resume_from(state, L).greedy == GreedyRule()
+    state["greedy"] = {"z": 1.0, "wrong": 2}
+    with pytest.raises(StateError):
+        ERSAC.from_state(state)
+
+
+def resume_from(state: dict, L: ERSAC) -> ERSAC:
+    R = ERSAC.from_state(state)
+    for x, c in zip(L.observations.points, L.observations.costs):
+        R.observe(x, float(c))
+    return R
+
+
+@pytest.mark.parametrize("kw", [dict(z=-1.0), dict(z=float("nan")), dict(radius=0.0), dict(min_move=-0.1),
+                                dict(around="everywhere"), dict(z=True)])
+def test_a_bad_greedy_rule_is_refused(kw) -> None:  # noqa: ANN001
+    with pytest.raises(InvalidInputError):
+        GreedyRule(**kw)
 
 
 @pytest.mark.parametrize("kw", [dict(max_step=0.0), dict(max_step=-1.0), dict(max_step=float("nan")),
