@@ -5,8 +5,9 @@
 Per round, three agents one after the other (off, ``--ros2``, ``--ros2 --record DIR``), each
 with its simulated robot in this process on a virtual bus and a Zenoh router, run the same
 lock-step episodes (same seed and theta). Printed per round and variant: the median episode
-wall time, this process's CPU time per SYNC cycle (agent, simulator, ROS 2 feed thread, Zenoh
-threads: ``time.process_time``) and the MCAP writer process's CPU per cycle (its rusage once the
+wall time, this process's CPU time per SYNC cycle (agent, simulator, the feed thread that hands
+the raw samples on, Zenoh threads: ``time.process_time``) and the feed process's CPU per cycle
+(the agent's child that serializes, publishes and writes the MCAP files: its rusage once the
 agent has stopped and reaped it), with the load average. CPU per cycle is the figure a shared
 machine disturbs least; wall time is what the issue's 10 % target is about. No pass/fail.
 OPENBLAS_NUM_THREADS=1.
@@ -43,7 +44,7 @@ def _children_cpu() -> float:
 
 
 def run(variant: str, task: str, episodes: int, record: Path) -> tuple[list[float], float, float, int]:
-    """(episode wall times, process CPU per cycle [ms], writer CPU per cycle [ms], cycles)."""
+    """(episode wall times, process CPU per cycle [ms], feed process CPU per cycle [ms], cycles)."""
     bus = BusConfig("virtual", f"cost-{uuid.uuid4().hex[:8]}")
     keys = KeySpace("cost")
     robot = SimulatedRobot(bus)
@@ -83,7 +84,7 @@ def main() -> int:
             for variant in VARIANTS:
                 walls, cpu, writer, cycles = run(variant, args.task, args.episodes, Path(tmp))
                 print(f"  {variant:<16} wall {statistics.median(walls):5.2f} s (median of {len(walls)})  "
-                      f"process CPU {cpu:5.3f} ms/cycle  writer process CPU {writer:5.3f} ms/cycle  "
+                      f"process CPU {cpu:5.3f} ms/cycle  feed process CPU {writer:5.3f} ms/cycle  "
                       f"({cycles} cycles)", flush=True)
     print(f"load average {os.getloadavg()[0]:.2f}")
     return 0

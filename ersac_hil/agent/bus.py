@@ -456,13 +456,13 @@ class AgentBus:
         self.cycles = cycle = self.cycles + 1  # only this thread writes it (EMCY callbacks read it)
         tpdos = self._tpdos
         tpdos.expect()  # type: ignore[union-attr]
+        if self._sink is not None and net.burst is not None:  # sent one by one, the tapped send_message has them
+            self._sink(time.time(), frames, True)  # queued before they go, so before their answers
         try:
             t0 = time.perf_counter()
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
-        if self._sink is not None:
-            self._sink(time.time(), frames, True)
         timing = self.timing
         if realtime:
             self.times.jitter_s.append(t0 - self._next_sync)  # type: ignore[operator]
@@ -519,12 +519,20 @@ class AgentBus:
 
     # -- a recorder's tap on the agent's own bus (``ersac_hil.ros2``: MCAP episodes) ------------
     def tap(self, sink: FrameSink | None) -> None:
-        """From now on also hand ``sink(timestamp, frames, sent)`` the frames of this bus: each
-        SYNC cycle's RPDOs and SYNC as sent (``(COB-ID, data)`` pairs, ``sent=True``) and every
+        """From now on also hand ``sink(timestamp, frames, sent)`` every frame of this bus: each
+        frame the agent sends (``sent=True``; ``(COB-ID, data)`` pairs, ``(id, flags, dlc,
+        data)`` for a remote or extended one), stamped just before it goes - each SYNC cycle's
+        RPDOs, SYNC and lock-step heartbeat as one burst, and one by one the NMT commands, SDO
+        requests and timer heartbeats (everything ``Network.send_message`` sends) - and every
         frame received (``protocol.can.fastpath.Frame`` tuples), on the sending or receiving
-        thread, so it must only queue them. No second bus is opened; ``None`` removes it."""
-        notifier = self.net.notifier
+        thread, so it must only queue them. A frame's answer reaches the sink after it. No
+        second bus is opened; ``None`` removes it."""
+        net = self.net
+        notifier = net.notifier
         self._sink = sink
+        net.__dict__.pop("send_message", None)
+        if sink is not None:
+            net.send_message = self._tapped_send(type(net).send_message.__get__(net), sink)
         if isinstance(notifier, BurstNotifier):
             notifier.intercept(self._tpdos.take if sink is None else self._take_tapped)  # type: ignore[union-attr]
             return
@@ -534,6 +542,18 @@ class AgentBus:
         if sink is not None:
             self._tap_listener = _Tap(sink)
             notifier.add_listener(self._tap_listener)
+
+    @staticmethod
+    def _tapped_send(send, sink: FrameSink):  # noqa: ANN001, ANN205 - Network.send_message and its wrapper
+        def tapped(can_id: int, data, remote: bool = False) -> None:  # noqa: ANN001 - bytes-like or list
+            data = bytes(data)
+            if remote or can_id > 0x7FF:
+                flags = (FLAG_REMOTE if remote else 0) | (FLAG_EXTENDED if can_id > 0x7FF else 0)
+                sink(time.time(), [(can_id, flags, len(data), data)], True)
+            else:
+                sink(time.time(), [(can_id, data)], True)
+            send(can_id, data, remote)
+        return tapped
 
     def _take_tapped(self, frames: list, timestamp: float) -> list:
         self._sink(timestamp, frames, False)  # type: ignore[misc]

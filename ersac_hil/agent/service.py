@@ -154,7 +154,7 @@ class AgentService:
         s = self.session
         if cfg.ros2 is not None or cfg.record is not None:
             from ersac_hil.ros2.feed import Feed  # rosbags and mcap only when asked for
-            self.feed = Feed.for_agent(cfg, s, self.bus)
+            self.feed = Feed.for_agent(cfg, self.bus)
             self.runner.observe = self.feed.observe
         self._publisher = s.declare_publisher(self.keys.episode_done)
         self._entities = [

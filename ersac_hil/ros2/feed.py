@@ -1,16 +1,17 @@
-"""What the agent's hooks feed: a bounded queue and one thread, and the MCAP writer process.
+"""What the agent's hooks feed: a bounded queue, one thread that hands it on as it is, and the
+feed process (``writer``) that does everything else.
 
 ``observe(tel)`` (the ``EpisodeRunner`` hook, on the SYNC loop's thread) and ``frames`` (the
-agent bus's tap, ``AgentBus.tap``: the frames it sends and receives) only append to a bounded
+agent bus's tap, ``AgentBus.tap``: every frame it sends and receives) only append to a bounded
 queue, without a lock and without waking anyone (the thread looks every ``POLL_S``); when the
 queue is full the item is dropped and counted (``dropped``; per episode in the MCAP file's
 metadata and a warning), so the control loop never waits for ROS 2 or the disk. The thread
-turns samples into ROS 2 messages (``messages``) for the live node (``bridge.Ros2Node``, every
-``decimation``-th cycle), handing the interpreter on after every item (a SYNC loop waiting for
-it would otherwise wait up to Python's switch interval, 5 ms), and hands everything of an
-episode, in batches, to the MCAP writer process (``writer.RecorderProcess``), which encodes what is not encoded yet and writes
-the file. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the file
-appears under it when complete, ``recorder``).
+hands the items unchanged (the cycle's ``Telemetry``, the frame bursts, the bus's new EMCY
+events), in small batches (``BATCH``: a pickle of one holds the interpreter briefly), down the
+pipe of the feed process, which makes the ROS 2 messages, publishes them as the agent's ROS 2
+node and writes the MCAP files: no ROS 2 serialization, no Zenoh put and no file in the agent's
+interpreter. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the
+file appears under it when complete, ``recorder``).
 """
 from __future__ import annotations
 
@@ -19,91 +20,68 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from pathlib import Path
 
 from ersac_hil.agent.bus import EmcyEvent
 from ersac_hil.agent.telemetry import Telemetry
-from ersac_hil.ros2 import messages as m
-from ersac_hil.ros2.bridge import Ros2Node
 from ersac_hil.ros2.options import Ros2Options
-from ersac_hil.ros2.writer import CLOSE_WAIT_S, RecorderProcess
-from protocol.robot import RobotDescription
+from ersac_hil.ros2.writer import CLOSE_WAIT_S, PART, TERM_WAIT_S, FeedProcess, FeedSettings
+from ersac_hil.zenoh_session import ZenohOptions
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 
 log = logging.getLogger(__name__)
 
-DIAGNOSTICS_EVERY = 200
-"""Cycles between two diagnostics when nothing changed (1 s at 200 Hz)."""
-BATCH = 512
-"""Records handed to the writer process at a time."""
+BATCH = 32
+"""Items handed to the feed process in one pickle at most."""
 POLL_S = 0.002
 """How often the thread looks for new items during an episode."""
-
-
-@dataclass
-class _Episode:
-    request: EpisodeRequest
-    start_ns: int
-    period_ns: int
-    first_cycle: int | None = None
-    index: int = 0
-    status: tuple[int, ...] = ()
-    last_diagnostics: int = 0
-    emcy_seen: int = 0
-    dropped0: int = 0
-
-    def stamp(self, cycle: int) -> int:
-        """The robot's time of a cycle: the episode's start plus SYNC periods."""
-        if self.first_cycle is None:
-            self.first_cycle = cycle
-        return self.start_ns + (cycle - self.first_cycle) * self.period_ns
 
 
 class Feed:
     """``start()``, the hooks ``observe`` and ``frames``, per episode ``begin`` ... ``end``, ``stop()``.
 
     Args:
-        robot: the robot's name (diagnostic names ``<robot>/<device>``).
-        node: the live ROS 2 node, or None. decimation: its joint-state/IMU rate divisor.
-        recorder: the MCAP writer process, or None.
+        process: the feed process (``writer.FeedProcess``).
         emcy: ``since -> EMCY events from there`` (the agent bus's log), or None.
         queue_size: items (cycles, frame bursts) the thread may lag behind.
-        description: the robot description (joint efforts from its torque constants and
-            gears; None: the default description).
+        record: the MCAP directory (files are named by ``end``), or None.
     """
 
-    def __init__(self, robot: str, node: Ros2Node | None = None, decimation: int = 1,
-                 recorder: RecorderProcess | None = None,
-                 emcy: Callable[[int], list[EmcyEvent]] | None = None, queue_size: int = 16384,
-                 description: RobotDescription | None = None) -> None:
-        self.robot, self.node, self.decimation, self.recorder = robot, node, decimation, recorder
+    def __init__(self, process: FeedProcess, emcy: Callable[[int], list[EmcyEvent]] | None = None,
+                 queue_size: int = 16384, record: str | Path | None = None) -> None:
+        self.process = process
         self._emcy = emcy
+        self._emcy_seen = 0
+        self.record = Path(record) if record is not None else None
         self._items: deque = deque()
         self._capacity = queue_size
         self._wake = threading.Event()
         self._drop_lock = threading.Lock()  # drops are counted from the SYNC loop's and the bus's threads
         self._thread: threading.Thread | None = None
-        self._episode: _Episode | None = None
-        self._batch: list = []
-        self._per_amp = m.torque_per_amp(description)
         self._framing = False  # between begin and end: the tap's frames are queued
+        self._in_episode = False  # the thread's view
+        self._dropped0 = 0
+        self._episode_id = ""
         self._request: EpisodeRequest | None = None
+        self._unconfirmed: list[str] = []  # files named by end() not yet seen under their names
         self.dropped = 0
-        self.published = 0
 
     @classmethod
-    def for_agent(cls, config, session, bus) -> "Feed":  # noqa: ANN001 - AgentConfig, zenoh.Session, AgentBus
-        """The feed of an agent service: its ROS 2 node (``config.ros2``) and MCAP files
-        (``config.record``, with the frames of the agent's own bus), started."""
+    def for_agent(cls, config, bus) -> "Feed":  # noqa: ANN001 - AgentConfig, AgentBus
+        """The feed of an agent service: its ROS 2 node (``config.ros2``, on a session of the
+        agent's Zenoh configuration) and MCAP files (``config.record``, with every frame of the
+        agent's own bus), started."""
         options = config.ros2 or Ros2Options()
-        node = Ros2Node.declare(session, options, config.robot) if config.ros2 is not None else None
-        recorder = None
+        settings = FeedSettings(config.robot, options.namespace_for(config.robot), config.description,
+                                config.record, config.ros2,
+                                ZenohOptions(config.zenoh_connect, config.zenoh_config, config.zenoh_insecure),
+                                config.zenoh_mode)
+        process = FeedProcess(settings)
+        if config.ros2 is not None:
+            log.info("ROS 2 node %s/%s on domain %d, published by the feed process (pid %d)",
+                     settings.namespace.rstrip("/"), options.node, options.domain, process.pid)
+        feed = cls(process, bus.emcy_events, options.queue_size, config.record).start()
         if config.record is not None:
-            recorder = RecorderProcess(config.record, options.namespace_for(config.robot), config.robot,
-                                       m.torque_per_amp(config.description).tolist())
-        feed = cls(config.robot, node, options.decimation, recorder, bus.emcy_events, options.queue_size,
-                   config.description).start()
-        if recorder is not None:
             bus.tap(feed.frames)
         return feed
 
@@ -113,24 +91,28 @@ class Feed:
         return self
 
     def stop(self) -> None:
-        """Drain the queue, end the writer process (it finishes every file it was sent), withdraw
-        the node."""
+        """Hand on what is queued and end the feed process: it finishes every file it was
+        sent and withdraws the node, within ``CLOSE_WAIT_S`` in all; then it is ended, and
+        a file it had not finished stays ``.part`` (a warning names it)."""
         self._framing = False
+        deadline = time.monotonic() + CLOSE_WAIT_S
         thread = self._thread
         if thread is not None:
             self._control(None)
-            thread.join(timeout=CLOSE_WAIT_S)
-            if thread.is_alive() and self.recorder is not None:
-                # it waits on the full pipe to a writer far behind: end the writer, the write fails
-                log.warning("MCAP writer process %.0f s behind at stop: ended", CLOSE_WAIT_S)
-                self.recorder.terminate()
-                thread.join(timeout=CLOSE_WAIT_S)
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
+            if thread.is_alive():  # it waits on the full pipe to a child far behind
+                self.process.end_now()  # the write fails, the thread hands on nothing more
+                thread.join(timeout=TERM_WAIT_S)
             self._thread = None
-        if self.recorder is not None:
-            self.recorder.close()  # at most CLOSE_WAIT_S more, then the writer is ended
-            self.recorder = None
-        if self.node is not None:
-            self.node.close()
+        status = self.process.close(deadline)
+        record = self.record
+        unfinished = [n for n in self._unconfirmed if not (record / n).is_file()] if record is not None else []
+        if unfinished:
+            log.warning("MCAP files not finished within %.0f s of the agent's stop (the feed process, at "
+                        "niceness +10, was behind; exit status %s): %s", CLOSE_WAIT_S, status,
+                        ", ".join(n + PART + " left" if (record / (n + PART)).is_file() else n + " never begun"
+                                  for n in unfinished))
+        self._unconfirmed = []
 
     # -- the control loop's and the bus's side (never blocks) ---------------------------------
     def _offer(self, item: tuple) -> None:
@@ -157,111 +139,63 @@ class Feed:
     def begin(self, request: EpisodeRequest, period_s: float, emcy_mark: int = 0) -> None:
         self._request = request
         self._control(("begin", request, time.time_ns(), round(period_s * 1e9), emcy_mark, self.dropped))
-        self._framing = self.recorder is not None
+        self._framing = self.record is not None
 
     def end(self, result: EpisodeResult | None, fault: str = "") -> str:
         """Close the episode; the name its MCAP file will have (``""`` without recording)."""
         self._framing = False
-        self._control(("end", result, fault))
-        recorder, request, self._request = self.recorder, self._request, None
-        return f"{request.episode_id}.mcap" if recorder is not None and recorder.alive and request else ""
+        self._control(("end", result, fault, time.time_ns()))
+        request, self._request = self._request, None
+        if self.record is None or not self.process.alive or request is None:
+            return ""
+        name = f"{request.episode_id}.mcap"
+        self._unconfirmed = [n for n in self._unconfirmed if not (self.record / n).is_file()] + [name]
+        return name
 
     # -- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
-        items = self._items
+        items, batch = self._items, []
         while True:
-            self._wake.wait(POLL_S if self._episode is not None else None)
+            self._wake.wait(POLL_S if self._in_episode else None)
             self._wake.clear()
             while items:
                 item = items.popleft()
                 if item is None:
-                    self._send()
+                    self._send(batch)
                     return
-                try:
-                    getattr(self, "_on_" + item[0])(*item[1:])
-                except Exception as exc:  # never let one bad sample stop the thread
-                    log.exception("ROS 2 feed: %s", exc)
-                time.sleep(0)  # let a waiting SYNC loop or receive thread have the interpreter
+                if item[0] == "begin":
+                    item = self._on_begin(*item[1:])
+                elif item[0] == "end":
+                    batch += self._new_emcy()
+                    item = self._on_end(*item[1:])
+                batch.append(item)
+                if len(batch) >= BATCH:
+                    batch = self._send(batch)
+            batch = self._send(batch + self._new_emcy())
 
-    def _record(self, *record: object) -> None:
-        if self.recorder is not None:
-            self._batch.append(record)
-            if len(self._batch) >= BATCH:
-                self._send()
+    def _send(self, batch: list) -> list:
+        if batch:
+            self.process.send(batch)
+            time.sleep(0)  # let a waiting SYNC loop or receive thread have the interpreter
+        return []
 
-    def _send(self) -> None:
-        if self._batch and self.recorder is not None:
-            self.recorder.send(self._batch)
-        self._batch = []
-
-    def _put(self, topic: str, msg: object, stamp_ns: int) -> None:
-        data = m.serialize(msg, m.TOPICS[topic])
-        if self.node is not None:
-            self.node.put(topic, data)
-            self.published += 1
-        self._record("msg", topic, data, stamp_ns)
-
-    def _log(self, stamp_ns: int, level: int, text: str) -> None:
-        self._record("log", stamp_ns, level, text)
+    def _new_emcy(self) -> list:
+        if not self._in_episode or self._emcy is None:
+            return []
+        events = self._emcy(self._emcy_seen)
+        self._emcy_seen += len(events)
+        return [("emcy", events)] if events else []
 
     def _on_begin(self, request: EpisodeRequest, start_ns: int, period_ns: int, emcy_mark: int,
-                  dropped: int) -> None:
-        self._episode = _Episode(request, start_ns, period_ns, emcy_seen=emcy_mark, dropped0=dropped)
-        self._record("begin", request.episode_id, start_ns)
-        self._log(start_ns, m.LOG_INFO, f"episode {request.episode_id} started: {request.task} "
-                  f"theta={list(request.theta)} seed={request.seed}")
-        self._put("episode", m.episode_status(self.robot, request, None), start_ns)
+                  dropped: int) -> tuple:
+        self._in_episode, self._emcy_seen, self._dropped0 = True, emcy_mark, dropped
+        self._episode_id = request.episode_id
+        return ("begin", request, start_ns, period_ns)
 
-    def _on_frames(self, timestamp: float, frames: list, sent: bool) -> None:
-        if self._episode is not None:
-            self._record("frames", timestamp, frames, sent)
-
-    def _on_cycle(self, tel: Telemetry) -> None:
-        ep = self._episode
-        if ep is None:
-            return
-        stamp = ep.stamp(tel.cycle)
-        if self.node is not None and ep.index % self.decimation == 0:
-            for topic, msg in (("joint_states", m.joint_state(tel, stamp, self._per_amp)), ("imu", m.imu(tel, stamp))):
-                data = m.serialize(msg, m.TOPICS[topic])
-                self.node.put(topic, data)
-                self.published += 1
-                self._record("msg", topic, data, stamp)
-        else:  # the file's alone: the writer process encodes it
-            self._record("tel", stamp, tel)
-        statuses = []
-        if tel.status != ep.status or ep.index - ep.last_diagnostics >= DIAGNOSTICS_EVERY:
-            statuses += m.device_statuses(self.robot, tel)
-            ep.status = tel.status
-        if self._emcy is not None:
-            for ev in self._emcy(ep.emcy_seen):
-                ep.emcy_seen += 1
-                statuses.append(m.emcy_status(self.robot, ev))
-                self._log(stamp, m.LOG_INFO if ev.code == 0 else m.LOG_WARN,
-                          statuses[-1].message + f" (register 0x{ev.register:02X})")
-        if statuses:
-            ep.last_diagnostics = ep.index
-            self._put("diagnostics", m.diagnostics(stamp, statuses), stamp)
-        ep.index += 1
-
-    def _on_end(self, result: EpisodeResult | None, fault: str) -> None:
-        ep = self._episode
-        if ep is None:
-            return
-        stamp = max(time.time_ns(), ep.stamp(ep.first_cycle or 0) + ep.index * ep.period_ns)
-        if result is not None:
-            if not result.ok:
-                self._put("diagnostics", m.diagnostics(stamp, [m.fault_status(self.robot, result)]), stamp)
-            self._put("episode", m.episode_status(self.robot, ep.request, result, fault), stamp)
-        status = result.status if result is not None else fault or "failed"
-        self._log(stamp, m.LOG_INFO if result is not None and result.ok else m.LOG_ERROR,
-                  f"episode {ep.request.episode_id} ended: {status}"
-                  + (f" ({result.detail})" if result is not None and result.detail else "")
-                  + (f", cost {result.total_cost:.6g}" if result is not None and result.total_cost is not None else ""))
-        dropped = self.dropped - ep.dropped0
+    def _on_end(self, result: EpisodeResult | None, fault: str, end_ns: int) -> tuple:
+        self._in_episode = False
+        dropped = self.dropped - self._dropped0
         if dropped:
             log.warning("ROS 2 feed: %d samples or frame bursts of episode %s dropped (the feed fell a "
-                        "whole queue behind); the MCAP file's metadata 'feed' says so", dropped, ep.request.episode_id)
-        self._record("end", dropped)
-        self._send()
-        self._episode = None
+                        "whole queue behind); the MCAP file's metadata 'feed' says so", dropped, self._episode_id)
+        return ("end", result, fault, end_ns, dropped)

@@ -18,13 +18,12 @@ from typing import IO
 from mcap.writer import CompressionType, Writer
 
 from ersac_hil.ros2 import messages as m
+from ersac_hil.ros2.writer import PART
 
 LIBRARY = "ersac-hil"
 COMPRESSION = CompressionType.LZ4
 """Chunk compression: LZ4 costs the writer about a quarter less per message than zstd (MCAP's
 default), and every MCAP reader named above reads both."""
-PART = ".part"
-"""Suffix of a file still being written."""
 
 
 class McapEpisodes:
@@ -70,11 +69,11 @@ class McapEpisodes:
         self.write("events", m.serialize(m.log(stamp_ns, level, text, self.robot), m.LOG), stamp_ns)
 
     def frames(self, timestamp_s: float, frames: list, sent: bool) -> None:
-        """CAN frames of one burst (``AgentBus.tap``): ``(COB-ID, data)`` pairs as sent, or
-        ``(id, flags, dlc, data)`` as received, all stamped ``timestamp_s``."""
+        """CAN frames of one burst (``AgentBus.tap``), sent or received: ``(COB-ID, data)``
+        pairs (standard data frames) or ``(id, flags, dlc, data)``, all stamped ``timestamp_s``."""
         stamp = round(timestamp_s * 1e9)
         for frame in frames:
-            if sent:
+            if len(frame) == 2:
                 cdr = m.can_frame_cdr(stamp, frame[0], 0, len(frame[1]), frame[1])
             else:
                 cdr = m.can_frame_cdr(stamp, *frame)

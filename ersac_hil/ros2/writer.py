@@ -1,25 +1,33 @@
-"""The MCAP writer process of ``agent --record DIR``: the episodes' files are encoded and
-written by a child process of the agent, so that none of it shares the agent's interpreter
-(and its lock) with the SYNC loop.
+"""The feed process of ``agent --ros2`` / ``--record DIR``: a child process of the agent makes
+the ROS 2 messages (rosbags' CDR), publishes them on its own Zenoh session as the agent's ROS 2
+node (``bridge``), and writes the episodes' MCAP files (``recorder``), so that none of it shares
+the agent's interpreter (and its lock) with the SYNC loop. It opens its session with the
+agent's Zenoh configuration (the same endpoints, the same certificate: the same identity to
+the router's access control), listening nowhere.
 
-The agent (``RecorderProcess``, from the feed's thread) sends batches of records down the
-child's stdin, each a length-prefixed pickle of a list of tuples:
+The agent (``FeedProcess``, from the feed's thread) sends batches of records down the child's
+stdin, each a length-prefixed pickle of a list of tuples, the first one ``("open",
+FeedSettings)``; then the records of ``stream.EpisodeStream`` as the agent had them:
 
-* ``("open", directory, namespace, robot, torque_per_amp)`` (first, once);
-* ``("begin", episode_id, start_ns)``, ``("end", dropped_samples)``;
-* ``("msg", topic, cdr, stamp_ns)``: a message already in CDR;
-* ``("tel", stamp_ns, telemetry)``: one cycle's ``Telemetry`` (its joint state and IMU);
-* ``("log", stamp_ns, level, text)``: an event;
+* ``("begin", request, start_ns, period_ns)``, ``("end", result, fault, end_ns, dropped)``;
+* ``("cycle", telemetry)``, ``("emcy", [EmcyEvent, ...])``;
 * ``("frames", timestamp_s, frames, sent)``: CAN frames of one burst (``AgentBus.tap``).
+
+The child says ``ready`` on its stdout once its node is declared and its files can be written
+(``FeedProcess`` waits for it, so the agent announces itself only with its ROS 2 node up) or
+exits with a one-line error.
 
 The child runs at a lower priority: normal scheduling (a real-time agent's SCHED_FIFO, which
 children inherit, is dropped) at niceness ``NICE``, so when the cores are busy the control
-loop and the simulator go first and the writer catches up later (its input is the pipe, enlarged to
-``PIPE_BYTES``, behind the feed's bounded queue). The child ignores SIGINT (a Ctrl-C reaches the whole process group; the agent then closes the
-pipe) and ends at the end of its input: it finishes the episode it has open and exits, so the
-agent's ``close`` leaves no child. On SIGTERM (``close`` after ``CLOSE_WAIT_S``) it stops at
-once. Either way a file it has not seen the end of is finished as far as it got but stays
-``.part``: a file under its name is always whole.
+loop and the simulator go first and the child catches up later (its input is the pipe,
+enlarged to ``PIPE_BYTES``, behind the feed's bounded queue). The child ignores SIGINT and
+SIGTERM (a Ctrl-C or a supervisor's SIGTERM reaches the whole process group; the agent then
+hands on what it has queued and closes the pipe) and ends at the end of its input: it
+finishes the episode it has open, withdraws its node and exits, so the agent's ``close``
+leaves no child, and a dead agent's child ends too (its pipe closes). On ``STOP_NOW``
+(SIGUSR1, ``FeedProcess.end_now`` at the agent's deadline) it stops at once, and a
+SIGKILL follows ``TERM_WAIT_S`` later. A file it has not seen the end of is finished as far
+as it got (or, killed, cut off) but stays ``.part``: a file under its name is always whole.
 """
 from __future__ import annotations
 
@@ -27,35 +35,100 @@ import fcntl
 import logging
 import os
 import pickle
+import select
 import signal
 import struct
 import subprocess
 import sys
+import time
+from dataclasses import dataclass
 from typing import BinaryIO
+
+from ersac_hil.ros2.options import Ros2Options
+from ersac_hil.zenoh_session import ZenohOptions
+from protocol.robot import RobotDescription
 
 log = logging.getLogger(__name__)
 
 _LENGTH = struct.Struct("<I")
 NICE = 10
-"""The writer process's niceness above the agent's."""
+"""The feed process's niceness above the agent's."""
 PIPE_BYTES = 1 << 20
-"""The pipe to the writer (Linux ``F_SETPIPE_SZ``, where allowed; else the system's default)."""
+"""The pipe to the child (Linux ``F_SETPIPE_SZ``, where allowed; else the system's default)."""
 CLOSE_WAIT_S = 5.0
-"""How long ``close`` waits for the child to write what it was sent before it ends it (the
-episode it was writing then stays ``<episode_id>.mcap.part``): an agent stops within seconds."""
+"""How long an agent's stop gives the child, in all, to finish what it was sent before it is
+ended (the episode it was writing then stays ``<episode_id>.mcap.part``)."""
+TERM_WAIT_S = 1.0
+"""After ``STOP_NOW``, how long the child may take before SIGKILL."""
+STOP_NOW = signal.SIGUSR1
+"""The agent's "stop at once" (SIGINT and SIGTERM reach the whole group: the child ignores them)."""
+READY_WAIT_S = 60.0
+"""How long the agent waits for the child's ``ready`` (imports and a Zenoh session, on a loaded
+machine)."""
+READY = b"ready\n"
+PART = ".part"
+"""Suffix of an MCAP file still being written (``recorder``)."""
+FAILURES_SAID = 3
+"""Failed records the child logs (with their traceback); it goes on with the next."""
 
 
-class RecorderProcess:
-    """The agent's side: ``send(records) -> bool`` (False once the child is gone), ``close()``."""
+class FeedProcessError(RuntimeError):
+    """The feed process did not start (its own error line is on the agent's stderr)."""
 
-    def __init__(self, directory: str, namespace: str, robot: str, torque_per_amp: list[float]) -> None:
-        self._proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.ros2.writer"], stdin=subprocess.PIPE)
+
+@dataclass(frozen=True)
+class FeedSettings:
+    """What the child needs: the robot, where the files go, whether and how it publishes.
+
+    Attributes:
+        robot: the robot's name. namespace: its ROS namespace (topics, MCAP channels).
+        description: the robot description (joint efforts), None: the default one.
+        record: the MCAP directory (``--record``), or None.
+        ros2: the ROS 2 node's options (``--ros2``), or None: no live node.
+        zenoh, zenoh_mode: the agent's Zenoh session configuration (with ``ros2``).
+    """
+    robot: str
+    namespace: str
+    description: RobotDescription | None = None
+    record: str | None = None
+    ros2: Ros2Options | None = None
+    zenoh: ZenohOptions = ZenohOptions()
+    zenoh_mode: str = "client"
+
+
+class FeedProcess:
+    """The agent's side: ``send(records) -> bool`` (False once the child is gone),
+    ``close(deadline)``. Starting waits for the child's ``ready`` (``FeedProcessError``)."""
+
+    def __init__(self, settings: FeedSettings, ready_wait_s: float = READY_WAIT_S) -> None:
+        self._proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.ros2.writer"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE)
         try:
             fcntl.fcntl(self._proc.stdin, getattr(fcntl, "F_SETPIPE_SZ", 1031), PIPE_BYTES)  # type: ignore[arg-type]
         except OSError:  # above /proc/sys/fs/pipe-max-size: the default stays
             pass
         self.alive = True
-        self.send([("open", str(directory), namespace, robot, list(torque_per_amp))])
+        self.send([("open", settings)])
+        try:
+            self._wait_ready(ready_wait_s)
+        except FeedProcessError:
+            self.alive = False
+            self.end_now()
+            raise
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def _wait_ready(self, timeout_s: float) -> None:
+        out = self._proc.stdout
+        assert out is not None
+        ready, _, _ = select.select([out], [], [], timeout_s)
+        line = out.readline() if ready else b""
+        out.close()
+        if line != READY:
+            why = "it ended, see its error above" if ready else f"no answer within {timeout_s:.0f} s"
+            raise FeedProcessError(f"the ROS 2/MCAP feed process did not start ({why})")
 
     def send(self, records: list) -> bool:
         if not self.alive:
@@ -66,32 +139,37 @@ class RecorderProcess:
             self._proc.stdin.flush()  # type: ignore[union-attr]
         except (OSError, ValueError) as exc:  # BrokenPipeError: the child is gone
             self.alive = False
-            log.error("MCAP writer process gone (%s, status %s): recording stopped", exc, self._proc.poll())
+            log.error("ROS 2/MCAP feed process gone (%s, status %s): publishing and recording stopped",
+                      exc, self._proc.poll())
             return False
         return True
 
-    def terminate(self) -> None:
-        """End the child now (SIGTERM): a write waiting on the full pipe fails at once."""
+    def end_now(self) -> int:
+        """End the child now: ``STOP_NOW`` (it finishes its open file as far as it got,
+        ``.part``), SIGKILL after ``TERM_WAIT_S`` (a child starved of CPU or stopped cannot act
+        on a signal it handles); a write waiting on the full pipe then fails at once. Its exit
+        status."""
         if self._proc.poll() is None:
-            self._proc.terminate()
-
-    def close(self, timeout_s: float = CLOSE_WAIT_S) -> int:
-        """End the child's input and wait until it has written everything; its exit status."""
-        try:
-            self._proc.stdin.close()  # type: ignore[union-attr]
-        except OSError:
-            pass
-        try:
-            return self._proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            log.warning("MCAP writer process still writing after %.0f s: ended, its last episode's file "
-                        "stays <episode_id>.mcap.part", timeout_s)
-            self._proc.terminate()
+            self._proc.send_signal(STOP_NOW)
             try:
-                return self._proc.wait(timeout_s)
+                return self._proc.wait(TERM_WAIT_S)
             except subprocess.TimeoutExpired:
                 self._proc.kill()
-                return self._proc.wait()
+        return self._proc.wait()
+
+    def close(self, deadline: float) -> int:
+        """End the child's input and wait until it has done everything, at the latest until
+        ``deadline`` (``time.monotonic()``), then ``end_now``; its exit status. Never returns
+        with the child alive, nor later than ``TERM_WAIT_S`` after ``deadline``."""
+        self.alive = False
+        try:
+            self._proc.stdin.close()  # type: ignore[union-attr]
+        except OSError:  # the child is gone: what was buffered cannot be flushed
+            pass
+        try:
+            return self._proc.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            return self.end_now()
 
 
 def _read(stream: BinaryIO, n: int) -> bytes | None:
@@ -104,41 +182,58 @@ def _read(stream: BinaryIO, n: int) -> bytes | None:
     return data
 
 
-def serve(stream: BinaryIO) -> None:
-    """Apply every batch of ``stream`` until its end (the child's main loop)."""
-    from ersac_hil.ros2 import messages as m
-    from ersac_hil.ros2.recorder import McapEpisodes
+def _batches(stream: BinaryIO):  # noqa: ANN202 - Iterator[list]
+    while (head := _read(stream, _LENGTH.size)) is not None:
+        body = _read(stream, _LENGTH.unpack(head)[0])
+        if body is None:
+            return
+        yield pickle.loads(body)
 
-    episodes: McapEpisodes | None = None
-    per_amp = None
+
+def serve(stream: BinaryIO, ready: BinaryIO | None = None) -> None:
+    """Open what ``("open", settings)`` asks for, say ``READY`` on ``ready``, then apply every
+    record of ``stream`` until its end (the child's main loop)."""
+    from ersac_hil.ros2 import messages as m
+    from ersac_hil.ros2.bridge import Ros2Node
+    from ersac_hil.ros2.recorder import McapEpisodes
+    from ersac_hil.ros2.stream import EpisodeStream
+
+    batches = _batches(stream)
+    first = next(batches, None)
+    if not first or first[0][0] != "open":
+        raise ValueError("the feed's input does not start with its settings")
+    settings: FeedSettings = first[0][1]
+    session = node = None
+    episodes: EpisodeStream | None = None
     try:
-        while (head := _read(stream, _LENGTH.size)) is not None:
-            body = _read(stream, _LENGTH.unpack(head)[0])
-            if body is None:
-                break
-            for record in pickle.loads(body):
-                kind = record[0]
-                if kind == "tel":
-                    _, stamp, tel = record
-                    episodes.write("joint_states", m.serialize(m.joint_state(tel, stamp, per_amp), m.JOINT_STATE), stamp)  # type: ignore[union-attr]
-                    episodes.write("imu", m.serialize(m.imu(tel, stamp), m.IMU), stamp)  # type: ignore[union-attr]
-                elif kind == "frames":
-                    episodes.frames(*record[1:])  # type: ignore[union-attr]
-                elif kind == "msg":
-                    episodes.write(*record[1:])  # type: ignore[union-attr]
-                elif kind == "log":
-                    episodes.log(*record[1:])  # type: ignore[union-attr]
-                elif kind == "begin":
-                    episodes.begin(*record[1:])  # type: ignore[union-attr]
-                elif kind == "end":
-                    episodes.end(*record[1:])  # type: ignore[union-attr]
-                elif kind == "open":
-                    import numpy as np
-                    _, directory, namespace, robot, amps = record
-                    episodes, per_amp = McapEpisodes(directory, namespace, robot), np.array(amps, dtype=np.float64)
+        files = McapEpisodes(settings.record, settings.namespace, settings.robot) if settings.record else None
+        if settings.ros2 is not None:
+            from ersac_hil.zenoh_session import open_session, resolve_config
+            config = resolve_config(settings.zenoh, mode=settings.zenoh_mode)
+            config.insert_json5("listen/endpoints", "[]")  # the agent listens where it was told to
+            session = open_session(config, insecure=settings.zenoh.insecure)
+            node = Ros2Node.declare(session, settings.ros2, settings.robot)
+        episodes = EpisodeStream(settings.robot, m.torque_per_amp(settings.description), node,
+                                 settings.ros2.decimation if settings.ros2 is not None else 1, files)
+        if ready is not None:
+            ready.write(READY)
+            ready.close()
+        failed = 0
+        for batch in batches:
+            for record in batch:
+                try:
+                    getattr(episodes, record[0])(*record[1:])
+                except Exception as exc:  # never let one bad record stop the feed; say the first few
+                    failed += 1
+                    if failed <= FAILURES_SAID:
+                        log.exception("ROS 2/MCAP feed: a %r record failed: %s", record[0], exc)
     finally:
         if episodes is not None:
             episodes.close()  # an episode still open (its end never came) stays .part
+        if node is not None:
+            node.close()
+        if session is not None:
+            session.close()
 
 
 def _background() -> None:
@@ -148,19 +243,22 @@ def _background() -> None:
             if os.sched_getscheduler(0) != os.SCHED_OTHER:
                 os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         except OSError as exc:  # lowering is always permitted; say so if it was not
-            log.warning("MCAP writer process keeps its scheduling: %s", exc)
+            log.warning("ROS 2/MCAP feed process keeps its scheduling: %s", exc)
     os.nice(NICE)
 
 
 def main() -> int:
     _background()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(STOP_NOW, lambda *_: sys.exit(0))
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
+    ready = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)  # anything printed goes to the agent's stderr, not into the pipe it stops reading
     try:
-        serve(sys.stdin.buffer)
+        serve(sys.stdin.buffer, ready)
     except Exception as exc:  # noqa: BLE001 - one line, then the agent sees the pipe break
-        log.error("MCAP writer process failed: %s", exc)
+        log.error("ROS 2/MCAP feed process failed: %s", exc)
         return 1
     return 0
 

@@ -9,6 +9,7 @@ import signal
 import uuid
 from collections import Counter, defaultdict
 
+import can
 import numpy as np
 import pytest
 import zenoh
@@ -27,6 +28,7 @@ from firmware_sim.nodes.simrobot import SimulatedRobot
 from helpers.timing import PATIENCE_S
 from helpers.waiting import wait_until
 from protocol.can.busconfig import BusConfig
+from protocol.can.devices import AGENT_NODE_ID
 from protocol.robot import default_description
 from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
 
@@ -76,7 +78,7 @@ def run(tmp_path_factory):
                     for r in replies:
                         with open(record / r.mcap, "rb") as f:
                             summaries.append(make_reader(f).get_summary())
-                    writer = agent.feed.recorder._proc
+                    writer = agent.feed.process._proc
                     wait_until(lambda: os.getpriority(os.PRIO_PROCESS, writer.pid) >= os.getpriority(os.PRIO_PROCESS, 0) + NICE,
                                what="the writer process at a lower priority")
                     writer_scheduler = os.sched_getscheduler(writer.pid)
@@ -232,7 +234,7 @@ def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(
         with EmbeddedRouter() as router, router.open_client() as session:
             config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), record=str(tmp_path))
             with AgentService(config) as agent:
-                assert agent.feed.node is None
+                assert list(session.liveliness().get("@ros2_lv/**", timeout=1)) == []  # no ROS 2 node
                 hook = agent.runner.observe
                 agent.runner.observe = lambda tel: (telemetry.append(tel), hook(tel))
                 wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
@@ -255,10 +257,68 @@ def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(
     assert [m.message for m in got["/ubot_rec/episode"]] == ["started", reply.status]
 
 
-def test_a_stalled_writer_process_does_not_hold_up_the_agents_stop(tmp_path):
-    """The writer process stopped (SIGSTOP) during an episode: the reply still comes, the
-    agent's stop ends the writer after its grace time, no process is left, and there is no
-    half-written file under the episode's name."""
+def test_the_recording_holds_every_frame_the_agent_sends_and_receives_in_order(tmp_path):
+    """The ``can`` topic against a listener of its own on the bus: inside the episode, every
+    frame on the bus is in the file (the agent's NMT commands, SDO requests, timer and SYNC
+    heartbeats, RPDOs, SYNCs, and what the nodes sent) and nothing else; in log-time order
+    each SYNC is followed by its cycle's TPDOs and each SDO answer follows its request."""
+    bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
+    keys = KeySpace("ubot-can")
+    robot = SimulatedRobot(bus)
+    heard: list = []
+    listener = can.Bus(**bus.kwargs())
+    notifier = can.Notifier(listener, [lambda msg: heard.append(msg)])
+    try:
+        with EmbeddedRouter() as router, router.open_client() as session:
+            config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), record=str(tmp_path))
+            with AgentService(config):
+                wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
+                request = EpisodeRequest("ep-c1", "bracing", (0.5,), 5)
+                [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
+                           session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
+                wait_until(lambda: (tmp_path / reply.mcap).is_file(), PATIENCE_S * 6, what="the MCAP file, whole")
+    finally:
+        notifier.stop()
+        listener.shutdown()
+        robot.close()
+    with open(tmp_path / reply.mcap, "rb") as f:
+        recorded = [(message.log_time / 1e9, decoded) for _, channel, message, decoded in
+                    make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=["/ubot_can/can"])]
+    frames = [(t, f.id, bytes(f.data[:f.dlc])) for t, f in recorded]
+    ids = [cob_id for _, cob_id, _ in frames]
+    # the agent's own frames besides the cycles': NMT (pre-operational, start, pre-operational), SDO
+    assert [data for _, cob_id, data in frames if cob_id == 0] == [b"\x80\x00", b"\x01\x00", b"\x80\x00"]
+    requests = [cob_id for cob_id in ids if 0x601 <= cob_id <= 0x67F]
+    assert requests and len(requests) == sum(0x581 <= cob_id <= 0x5FF for cob_id in ids)
+    # in order: every SDO answer after an unanswered request of its node, one IMU TPDO after each SYNC
+    unanswered = Counter()
+    for cob_id in ids:
+        if 0x601 <= cob_id <= 0x67F:
+            unanswered[cob_id - 0x600] += 1
+        elif 0x581 <= cob_id <= 0x5FF:
+            assert unanswered[cob_id - 0x580] > 0, hex(cob_id)
+            unanswered[cob_id - 0x580] -= 1
+    cyclic = [cob_id for cob_id in ids if cob_id in (0x80, 0x1A0)]
+    assert cyclic == [0x80, 0x1A0] * round(reply.telemetry["n_cycles"])
+    # everything on the bus inside the episode, and nothing else (multisets; a margin at the
+    # edges, where the two clocks' stamps of one frame may straddle the window)
+    first, last, margin = frames[0][0], frames[-1][0], 0.02
+    on_bus = [(m.timestamp, m.arbitration_id, bytes(m.data)) for m in heard]
+
+    def inside(seq, lo, hi):
+        return Counter((cob_id, data) for t, cob_id, data in seq if lo <= t <= hi)
+    lo, hi = first + margin, last - margin
+    assert not inside(on_bus, lo, hi) - inside(frames, lo - margin, hi + margin)
+    assert not inside(frames, lo, hi) - inside(on_bus, lo - margin, hi + margin)
+    # the agent's heartbeats: with each 20th SYNC in lock-step, and those of its timer
+    assert ids.count(0x700 + AGENT_NODE_ID) > round(reply.telemetry["n_cycles"]) // 20
+
+
+def test_a_stalled_writer_process_does_not_hold_up_the_agents_stop(tmp_path, caplog):
+    """The feed process stopped (SIGSTOP) during an episode: the reply still comes, the
+    agent's stop ends the process after its grace time (SIGKILL: a stopped process cannot act
+    on SIGTERM), no process is left, there is no half-written file under the episode's name,
+    and the agent says which file stays ``.part``."""
     bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
     keys = KeySpace("ubot-stall")
     robot = SimulatedRobot(bus)
@@ -266,7 +326,7 @@ def test_a_stalled_writer_process_does_not_hold_up_the_agents_stop(tmp_path):
         with EmbeddedRouter() as router, router.open_client() as session:
             config = AgentConfig(robot=keys.robot, bus=bus, zenoh_connect=(router.endpoint,), record=str(tmp_path))
             with AgentService(config) as agent:
-                writer = agent.feed.recorder._proc
+                writer = agent.feed.process._proc
                 wait_until(lambda: list(session.liveliness().get(keys.agent_alive, timeout=1)))
                 os.kill(writer.pid, signal.SIGSTOP)
                 request = EpisodeRequest("ep-s1", "bracing", (0.5,), 5)
@@ -277,6 +337,9 @@ def test_a_stalled_writer_process_does_not_hold_up_the_agents_stop(tmp_path):
         robot.close()
     assert writer.poll() is not None
     assert not (tmp_path / "ep-s1.mcap").exists()  # at most ep-s1.mcap.part, as far as it got
+    said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING" and "not finished" in r.getMessage()]
+    part = (tmp_path / "ep-s1.mcap.part").exists()
+    assert len(said) == 1 and ("ep-s1.mcap.part left" if part else "ep-s1.mcap never begun") in said[0]
 
 
 def test_report_exports_a_run_with_every_episode_and_the_updates(run, tmp_path):
