@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.agent.bus import AgentBus
 from ersac_hil.agent.episode import EpisodeRunner
-from ersac_hil.agent.errors import BusFault
+from ersac_hil.agent.errors import BusFault, SdoTimeout
 from firmware_sim.nodes.simrobot import SimulatedRobot
 from protocol.can import cobid
 from protocol.can.busconfig import open_network
@@ -142,5 +142,30 @@ def test_an_unsolicited_sdo_answer_leaves_later_transfers_clean(rig):
     result, injected = rig.episode(_frames("sdo_answer"))
     assert injected and _is_bus_fault(result), (result.status, result.detail)
     rig.bus.read(IMU.name, 0x1018, 1)  # a transfer of that node: its vendor id
+    calm, _ = rig.episode()
+    assert calm.status == "ok", calm.detail
+
+
+@pytest.mark.parametrize("can_backend", ["virtual"], indirect=True)
+def test_a_stray_sdo_answer_after_a_timed_out_transfer_is_a_bus_fault(rig):
+    """A transfer the node never answered leaves nothing awaited: one later SDO answer of that
+    node (the late answer of the timed-out request, or a stray one) is the bus fault it is, not
+    the answer of a request the client gave up on (the agent once kept the timed-out request,
+    and canopen's abort after it, as unanswered, so the next stray answer of that node passed
+    unnoticed); the node's transfers after it are clean."""
+    server = cobid.sdo_rx(IMU.node_id)
+    answering = list(rig.robot.network.subscribers[server])
+    client = rig.bus.nodes[IMU.name].sdo
+    patience, client.RESPONSE_TIMEOUT = client.RESPONSE_TIMEOUT, 0.2
+    rig.robot.network.unsubscribe(server)  # the IMU's SDO server deaf for one transfer
+    with pytest.raises(SdoTimeout):
+        rig.bus.read(IMU.name, 0x1018, 1)
+    client.RESPONSE_TIMEOUT = patience
+    for callback in answering:
+        rig.robot.network.subscribe(server, callback)
+    result, injected = rig.episode(_frames("sdo_answer"))
+    assert injected and _is_bus_fault(result), (result.status, result.detail)
+    assert "an SDO answer from imu to no request" in result.detail
+    rig.bus.read(IMU.name, 0x1018, 1)  # answered: a transfer of that node after it is clean
     calm, _ = rig.episode()
     assert calm.status == "ok", calm.detail
