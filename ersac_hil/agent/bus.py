@@ -51,6 +51,7 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
+from canopen.sdo.constants import REQUEST_ABORTED
 
 from ersac_hil.agent import configure
 from ersac_hil.agent.errors import (BusDown, BusFault, ConfigRefused, HeartbeatLost, NodeMissing,
@@ -212,7 +213,7 @@ class AgentBus:
             net.notifier.add_listener(_ForeignFrames(known, self._tpdos.note))
         for dev in self.devices:  # every SDO answer answers a request (of canopen's client of the node)
             client = self.nodes[dev.name].sdo
-            client.send_request = self._counted(dev.name, client.send_request)
+            client.send_request, client.read_response = self._counted(dev.name, client)
             net.subscribe(cobid.sdo_tx(dev.node_id), lambda *_, name=dev.name: self._on_sdo_answer(name))
         self._decoder = None  # compiled at the first cycle (a bus of some devices only never cycles)
         self._heartbeat = HeartbeatProducer(net).start()
@@ -372,12 +373,26 @@ class AgentBus:
             raise BusDown(f"NMT {state} not sent: {exc}") from exc
 
     # -- SDO -------------------------------------------------------------------------------
-    def _counted(self, name: str, send_request):  # noqa: ANN001, ANN202
+    def _counted(self, name: str, client):  # noqa: ANN001, ANN202
+        """``client``'s send and wait, counting what its node owes: a request awaits one
+        answer (an abort none); one it gave up waiting for awaits nothing any more, so its late
+        answer, like any stray one, is a bus fault and never the answer of a later request."""
+        send_request, read_response = client.send_request, client.read_response
+
         def send(request) -> None:  # noqa: ANN001
-            with self._cond:
-                self._sdo_unanswered[name] = self._sdo_unanswered.get(name, 0) + 1
+            if request[0] & 0xE0 != REQUEST_ABORTED:
+                with self._cond:
+                    self._sdo_unanswered[name] = self._sdo_unanswered.get(name, 0) + 1
             send_request(request)
-        return send
+
+        def wait() -> bytes:
+            try:
+                return read_response()
+            except SdoCommunicationError:  # no answer in time: the transfer is over
+                with self._cond:
+                    self._sdo_unanswered[name] = 0
+                raise
+        return send, wait
 
     def _on_sdo_answer(self, name: str) -> None:
         """An answer takes one unanswered request; with none it is a bus fault, and is not
