@@ -36,6 +36,7 @@ floats as ``repr`` text, so values round-trip exactly.
 """
 from __future__ import annotations
 
+import errno
 import json
 import sqlite3
 import threading
@@ -231,6 +232,22 @@ def _wal(path: Path) -> Path:
     return path.with_name(path.name + "-wal")
 
 
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO)
+"""The errors of a file system that has no room (or cannot write), not of a wrong path."""
+
+
+def _remove_new(path: Path, made: Sequence[Path]) -> None:
+    """Remove a store that was being created at ``path`` (its file, journals) and the
+    directories ``made`` for it (deepest first), as far as they are there and empty."""
+    for name in (path.name, path.name + "-wal", path.name + "-shm", path.name + "-journal"):
+        path.with_name(name).unlink(missing_ok=True)
+    for directory in made:
+        try:
+            directory.rmdir()
+        except OSError:
+            break
+
+
 def _dumps(value: Any) -> str:
     return json.dumps(value, allow_nan=False, separators=(",", ":"))
 
@@ -410,7 +427,13 @@ class Store:
         else:
             if existed and not self.path.is_file():
                 raise StoreError(f"{self.path} is not a file")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            made = [d for d in (self.path.parent, *self.path.parent.parents) if not d.exists()]
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                _remove_new(self.path, made)
+                error = StoreUnwritable if exc.errno in _NO_SPACE else StoreError
+                raise error(f"store {self.path} cannot be created: {exc.strerror}") from exc
             self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False,
                                        timeout=10.0)
         self._db.row_factory = sqlite3.Row
@@ -441,10 +464,12 @@ class Store:
                 _refresh_episodes_table(self._db)
         except sqlite3.DatabaseError as exc:
             self._db.close()
-            if not existed:
-                self.path.unlink(missing_ok=True)
-            detail = f"not an ersac-hil store ({exc})" if existed else str(exc)
-            raise StoreError(f"{self.path}: {detail}") from exc
+            if existed:
+                raise StoreError(f"{self.path}: not an ersac-hil store ({exc})") from exc
+            _remove_new(self.path, made)  # nothing half-written: no file, no directory of it
+            if getattr(exc, "sqlite_errorname", "").startswith(("SQLITE_FULL", "SQLITE_IOERR")):
+                raise StoreUnwritable(f"store {self.path} cannot be created: {exc}; is the disk full?") from exc
+            raise StoreError(f"{self.path}: {exc}") from exc
         except StoreError:
             self._db.close()
             raise

@@ -14,7 +14,7 @@ import pytest
 from ersac_hil.daemon.clients import LearnerClient
 from ersac_hil.daemon.config import ConfigError, DaemonConfig, load_toml, merge
 from ersac_hil.daemon.runs import open_run, rebuild_engine, scenario_seed
-from ersac_hil.daemon.service import EXIT_FAILED, MAX_REDRAWS
+from ersac_hil.daemon.service import EXIT_FAILED, EXIT_STORE, MAX_REDRAWS
 from ersac_hil.daemon.store import Store
 from helpers import synthetic_agent
 from helpers.waiting import wait_for_store, wait_until
@@ -295,6 +295,37 @@ def test_sigterm_interrupts_the_episode_and_exits_143(router, agent_factory, tmp
         (run,) = store.runs()
         assert [a.status for a in store.attempts(run.run_id)] == ["interrupted"], out
         assert run.status == "running"  # resumable
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A small file system (tmpfs, 64 KiB) mounted for the test, filled to the last byte."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k,mode=0755", "tmpfs", str(disk)],
+                             capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small file system here: {mounted.stderr.strip()}")
+    try:
+        with open(disk / "filler", "wb", buffering=0) as filler, pytest.raises(OSError, match="No space left"):
+            while True:
+                filler.write(bytes(4096))
+        yield disk
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+def test_a_store_that_cannot_be_created_for_lack_of_space_exits_5_and_leaves_nothing(router, full_disk):
+    """The session is open, the new store cannot be written (a full disk): not a usage error
+    (2) but the store's (5), one line naming the store, and neither the store's file, its
+    journals nor the directories made for it are left behind."""
+    db = full_disk / "new" / "dir" / "run.db"
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    done = subprocess.run(_daemon_cmd(router, db), env=env, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == EXIT_STORE, done.stdout + done.stderr
+    assert len(lines) == 1 and f"store {db} cannot be created" in lines[0], done.stderr
+    assert [p.name for p in full_disk.iterdir()] == ["filler"]
 
 
 # --------------------------------------------------------------------------- reply source
