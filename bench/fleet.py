@@ -1,7 +1,7 @@
 """Throughput of independent episodes on a fleet of N simulator/agent pairs behind one client.
 
     python bench/fleet.py [--fleet 1,2] [--busy-poll auto,0] [--episodes 16] [--rounds 2] [--task bracing]
-                          [--out DIR]
+                          [--out DIR] [--agents KEYEXPR --zenoh-config FILE]
 
 For each N the stack of ``ersac-hil demo --fleet N`` is started (embedded router, N simulator
 and N agent processes, each pair on its own CAN-over-Zenoh channel); the same M independent
@@ -14,6 +14,10 @@ default ``auto``, the demo's choice for each N, ``ersac_hil.stack.busy_poll_for`
 comma-separated, are compared). The sizes (and windows) are interleaved round by round (1,
 2, 1, 2, ...) so every comparison is from the same run; the load average is printed beside
 every figure (a shared 2-core machine).
+
+``--agents KEYEXPR`` (with ``--zenoh``/``--zenoh-config``) measures the pairs already running
+elsewhere behind a router instead (``ersac_hil.stack.remote``, docs/reproduce.md "On a fleet"):
+one size, the agents found; nothing is started.
 
 It also checks that the results do not depend on the fleet: every episode's cost terms must be
 bit-identical for every N and round (the scenario seed travels in the request).
@@ -36,9 +40,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
+from ersac_hil.daemon.fleet import NoAgents, reach_agents  # noqa: E402
 from ersac_hil.stack import Stack, busy_poll_for  # noqa: E402
-from ersac_hil.zenoh_session import make_config, open_session  # noqa: E402
-from protocol.zenoh import DEFAULT_PREFIX, EpisodeRequest, get_task  # noqa: E402
+from ersac_hil.stack.remote import Agents, RemoteAgents, add_agents_arguments, agents_from_args  # noqa: E402
+from ersac_hil.zenoh_session import open_session, resolve_config  # noqa: E402
+from protocol.zenoh import EpisodeRequest, get_task  # noqa: E402
 
 THETA = {"bracing": (0.5,), "lifting": (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)}
 
@@ -47,15 +53,18 @@ def load() -> str:
     return " ".join(f"{v:.1f}" for v in os.getloadavg())
 
 
-def run_fleet(n: int, task: str, m: int, logs: Path, tag: str,
-              busy_poll: float | None = None) -> tuple[float, dict[int, dict]]:
-    """Start the stack with ``n`` pairs, run ``m`` episodes; (wall seconds, seed -> cost terms)."""
+def run_fleet(n: int, task: str, m: int, logs: Path, tag: str, busy_poll: float | None = None,
+              agents: tuple[Agents, list[str]] | None = None) -> tuple[float, dict[int, dict]]:
+    """Start the stack with ``n`` pairs (or use ``agents``: the ``n`` robots found behind their
+    router), run ``m`` episodes; (wall seconds, seed -> cost terms)."""
     stop = threading.Event()
-    with Stack(logs / f"{tag}-n{n}-p{busy_poll}", stop, lambda _line: None, pairs=n, fleet=True,
-               busy_poll=busy_poll) as stack:
+    where = logs / f"{tag}-n{n}-p{busy_poll}"
+    with (RemoteAgents(where, stop, lambda _line: None, agents[1], agents[0].prefix, agents[0].options) if agents
+          else Stack(where, stop, lambda _line: None, pairs=n, fleet=True, busy_poll=busy_poll)) as stack:
         stack.start()
-        session = open_session(make_config("client", connect=(stack.endpoint,)))
-        fleet = Fleet(session, DEFAULT_PREFIX, [p.robot for p in stack.pairs], 300.0, stop)
+        options = stack.zenoh_options()
+        session = open_session(resolve_config(options), insecure=options.insecure)
+        fleet = Fleet(session, stack.pairs[0].prefix, [p.robot for p in stack.pairs], 300.0, stop)
         try:
             deadline = time.monotonic() + 120
             while len(fleet.ready()) < n:
@@ -101,9 +110,24 @@ def main() -> int:
     ap.add_argument("--out", type=Path, help="write fleet.png here")
     ap.add_argument("--busy-poll", dest="busy_poll", default="auto",
                     help="CAN buses' polling window(s) in s, comma-separated (0 = off; default auto: the demo's)")
+    add_agents_arguments(ap)
     args = ap.parse_args()
+    agents, refusal = agents_from_args(args)
+    if refusal:
+        print(f"fleet: {refusal}", file=sys.stderr)
+        return 2
     sizes = [int(x) for x in args.fleet.split(",")]
     polls = [None if x == "auto" else float(x) for x in args.busy_poll.split(",")]
+    found = None
+    if agents is not None:
+        try:
+            found = agents, reach_agents(agents.options, agents.source, agents.prefix, agents.wait_s,
+                                         threading.Event())
+        except NoAgents as exc:
+            print(f"fleet: --agents {agents.source}: {exc}", file=sys.stderr)
+            return 2
+        sizes, polls = [len(found[1])], [None]
+        print(f"agents behind the router: {', '.join(found[1])} (their own busy polling)")
     variants = [(n, p) for n in sizes for p in polls]
     horizon = get_task(args.task).horizon_s
     print(f"{args.task}: {args.episodes} independent episodes per fleet size, sizes {sizes}, busy polling "
@@ -116,7 +140,7 @@ def main() -> int:
         for r in range(args.rounds):
             for n, poll in variants:
                 before = load()
-                wall, results = run_fleet(n, args.task, args.episodes, Path(tmp), f"r{r}", poll)
+                wall, results = run_fleet(n, args.task, args.episodes, Path(tmp), f"r{r}", poll, found)
                 walls[n, poll].append(wall)
                 if reference is None:
                     reference = results

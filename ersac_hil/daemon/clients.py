@@ -56,6 +56,8 @@ ACTIONS: dict[str, tuple[str, str, str]] = {
     "episodes": ("query", "learner/episodes", "read the run's history"),
     "kappa": ("put", "learner/kappa", "set kappa"),
     "weights": ("put", "learner/weights", "set the weights"),
+    # a requester of episodes (reproduce --agents, bench/bracing_sweep.py --agents), not a control-plane client
+    "run": ("query", "episode/run", "request episodes"),
 }
 
 

@@ -50,6 +50,7 @@ __all__ = [
     "LEARNER_FIELDS",
     "TASK_DEFAULTS",
     "TaskDefaults",
+    "check_source",
     "task_defaults",
     "load_toml",
     "merge",
@@ -69,6 +70,22 @@ LEARNER_FIELDS: tuple[str, ...] = (
 LEGACY_SETTINGS: dict[str, Any] = {"batch": 1, "interleave_every": 0, "learner": "guarded"}
 #: One key chunk naming robots: a name or a pattern with ``*`` / ``$*`` (e.g. ``ubot$*``).
 FLEET_PATTERN = re.compile(r"\*|(?:[A-Za-z0-9_.\-]|\$\*){1,64}")
+
+
+def check_source(source: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """``source`` if it is a robot name or a one-chunk key expression of names under ``prefix``
+    (``ubot2``, ``*``, ``ubot$*``), else ``ValueError`` saying so."""
+    import zenoh
+    try:
+        if not FLEET_PATTERN.fullmatch(source):
+            raise ValueError
+        zenoh.KeyExpr(f"{prefix}/{source}/agent/alive")
+    except (ValueError, zenoh.ZError):
+        raise ValueError(f"{source!r} is neither a robot name nor a one-chunk key expression of names "
+                         "(e.g. ubot2, *, ubot$*)") from None
+    return source
+
+
 class TaskDefaults(msgspec.Struct, frozen=True):
     """The learner settings of a new run of one task unless configured (shapes ``(dim,)``)."""
 
@@ -225,15 +242,11 @@ class DaemonConfig(Record, frozen=True, kw_only=True):
             KeySpace(self.robot, self.prefix)
         except ValueError as exc:
             raise InvalidField("robot", str(exc)) from None
-        import zenoh
         for source in self.fleet:
             try:
-                if not FLEET_PATTERN.fullmatch(source):
-                    raise ValueError
-                zenoh.KeyExpr(f"{self.prefix}/{source}/agent/alive")
-            except (ValueError, zenoh.ZError):
-                raise InvalidField("fleet", f"{source!r} is neither a robot name nor a one-chunk key "
-                                            "expression of names (e.g. ubot2, *, ubot$*)") from None
+                check_source(source, self.prefix)
+            except ValueError as exc:
+                raise InvalidField("fleet", str(exc)) from None
         spec = get_task(self.task)
         defaults = task_defaults(self.task)
         from ersac_hil.learner.presets import PRESETS, TASK_LEARNER

@@ -17,9 +17,13 @@ import time
 from collections.abc import Callable, Collection
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ersac_hil.cli_args import output_dir
 from ersac_hil.stack import PAIRS_PER_CORE, TooManyPairs, check_pairs
+
+if TYPE_CHECKING:
+    from ersac_hil.stack.remote import Agents
 
 __all__ = ["register", "run_reproduce"]
 
@@ -77,12 +81,17 @@ def _plan(out: Path, experiments, requested, explicit):  # noqa: ANN001, ANN202
 
 
 def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading.Event,  # noqa: ANN001
-                  say: Callable[[str], None] = print, explicit: Collection[str] | None = None) -> int:
+                  say: Callable[[str], None] = print, explicit: Collection[str] | None = None,
+                  agents: Agents | None = None) -> int:
     """Run ``experiment`` (or ``all``) with ``sizes`` (``explicit``: the fields asked for by an
     option, default all; the others as ``out`` recorded them for each experiment where it did),
-    analyse, write the results. Returns an exit code."""
+    analyse, write the results. With ``agents`` the pairs are the agents already running behind
+    a router that it finds (``pairs`` is ignored; none found: refused, nothing written), else
+    ``pairs`` pairs are started here. Returns an exit code."""
     from ersac_hil.daemon.agents import Stopped
+    from ersac_hil.daemon.fleet import NoAgents, reach_agents
     from ersac_hil.stack import ChildFailed, Stack
+    from ersac_hil.stack.remote import RemoteAgents
 
     from . import bracing, contexts, lifting, results
     from .planfile import INTERLEAVE, SIZE_FIELDS, PlanConflict
@@ -92,6 +101,16 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
 
     modules = {"bracing": bracing, "lifting": lifting, "contexts": contexts}
     experiments = EXPERIMENTS if experiment == "all" else (experiment,)
+    robots: list[str] = []
+    if agents is not None:
+        try:
+            robots = reach_agents(agents.options, agents.source, agents.prefix, agents.wait_s, stop)
+        except NoAgents as exc:
+            print(f"ersac-hil reproduce: --agents {agents.source}: {exc}", file=sys.stderr)
+            return 2
+        except Stopped:
+            return 130
+        pairs = len(robots)
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -106,9 +125,12 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     report = results.load(out)
     timing = report.get("meta", {}).get("timing", {})
     total, count = _count(out, sizes, experiments)
-    say(f"reproduce {experiment}: {total} episodes to have ({count()} already stored) on {pairs} "
-        f"simulator/agent pair(s); output in {out}")
-    stack = Stack(out / "logs", stop, lambda line: say(f"reproduce: {line}"), pairs=pairs)
+    where = (f"{pairs} agent(s) behind the router ({', '.join(robots)})" if agents is not None
+             else f"{pairs} simulator/agent pair(s)")
+    say(f"reproduce {experiment}: {total} episodes to have ({count()} already stored) on {where}; output in {out}")
+    stack_say = lambda line: say(f"reproduce: {line}")  # noqa: E731
+    stack = (RemoteAgents(out / "logs", stop, stack_say, robots, agents.prefix, agents.options)
+             if agents is not None else Stack(out / "logs", stop, stack_say, pairs=pairs))
     trials = TrialStore(out / "trials.db")
     pool = Pool(stack, trials, stop, say, before_job=guard(code))
     try:
@@ -136,7 +158,8 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
             report[name] = modules[name].analyse(sizes, out, trials, say)
     finally:
         trials.close()
-    report["meta"] = {**meta, "pairs": pairs, "timing": timing}
+    report["meta"] = {**meta, "pairs": pairs, "timing": timing,
+                      **({"agents": {"source": agents.source, "robots": robots}} if agents is not None else {})}
     results.save(out, report)
     met = [t for t in report["targets"] if t["met"]]
     say(f"reproduce: {len(met)}/{len(report['targets'])} targets met; {out / 'results.md'}")
@@ -150,12 +173,19 @@ def _main(args: argparse.Namespace) -> int:
     if args.seeds is not None and args.seeds < 1:
         print("ersac-hil reproduce: --seeds must be >= 1", file=sys.stderr)
         return 2
-    if args.pairs < 1:
+    from ersac_hil.stack.remote import agents_from_args
+
+    agents, refusal = agents_from_args(args)
+    if refusal:
+        print(f"ersac-hil reproduce: {refusal}", file=sys.stderr)
+        return 2
+    pairs = 1 if args.pairs is None else args.pairs
+    if pairs < 1:
         print("ersac-hil reproduce: --pairs must be >= 1", file=sys.stderr)
         return 2
     if not args.oversubscribe:
         try:
-            check_pairs(args.pairs, "--pairs", "--oversubscribe")
+            check_pairs(pairs, "--pairs", "--oversubscribe")
         except TooManyPairs as exc:
             print(f"ersac-hil reproduce: {exc}", file=sys.stderr)
             return 2
@@ -169,12 +199,14 @@ def _main(args: argparse.Namespace) -> int:
         sizes = replace(sizes, lifting_interleave_every=args.lifting_interleave)
         explicit.add(INTERLEAVE)
     from ersac_hil.lifecycle import until_signal
-    return until_signal(lambda stop: run_reproduce(args.experiment, sizes, Path(args.out), args.pairs, stop,
-                                                   lambda line: print(line, flush=True), explicit))
+    return until_signal(lambda stop: run_reproduce(args.experiment, sizes, Path(args.out), pairs, stop,
+                                                   lambda line: print(line, flush=True), explicit, agents))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``reproduce`` to the ``ersac-hil`` parser."""
+    from ersac_hil.stack.remote import add_agents_arguments
+
     p = sub.add_parser("reproduce", help="the paper's experiments through the real stack; figures and results",
                        description="The paper's experiments (Figs. 1, 2, 4, 6 and their statistics) through the "
                        "real stack, the processes of the demo: Zenoh router, per simulator/agent pair a "
@@ -192,9 +224,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "Algorithm 1; without it: what --out recorded)")
     p.add_argument("--out", type=output_dir, default="reproduce-results",
                    help="output directory (default ./reproduce-results)")
-    p.add_argument("--pairs", type=int, default=1,
-                   help=f"simulator/agent pairs run in parallel (default 1; one core each; at most {PAIRS_PER_CORE} "
-                   "a core this process may use unless --oversubscribe)")
+    p.add_argument("--pairs", type=int, default=None,
+                   help=f"simulator/agent pairs started here and run in parallel (default 1; one core each; at most "
+                   f"{PAIRS_PER_CORE} a core this process may use unless --oversubscribe)")
     p.add_argument("--oversubscribe", action="store_true",
                    help=f"start --pairs N even above {PAIRS_PER_CORE} pairs a core this process may use")
+    add_agents_arguments(p)
     p.set_defaults(func=_main)

@@ -56,7 +56,7 @@ def _control(pool: Pool, worker: Worker, spec: RunSpec, db: Path, context: str) 
     keys = KeySpace(worker.pair.robot, worker.pair.prefix)
 
     def steer() -> None:
-        with LearnerClient(keys, [pool.stack.endpoint], timeout_s=60.0) as client:
+        with LearnerClient(keys, pool.stack.zenoh_options(), timeout_s=60.0) as client:
             deadline = time.monotonic() + 60.0
             while True:
                 try:

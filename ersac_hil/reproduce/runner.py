@@ -1,7 +1,9 @@
 """Running the experiments' work on the stack: a pool of simulator/agent pairs, learning runs
 (one ``ersac-hil daemon`` process each, its own SQLite store) and trials, with a progress bar.
 
-Every pair is one worker thread; a job is a callable run on a free pair. Independent episodes
+Every pair is one worker thread; a job is a callable run on a free pair. The pairs are those of
+a ``Stack`` (started here) or of ``RemoteAgents`` (already running behind a router, ``reproduce
+--agents``): the same jobs, the same requests, the same results. Independent episodes
 (trials) spread over every pair; a learning run holds one pair for its whole run (its daemon
 talks to that pair's agent, under the pair's key prefix). With one pair everything runs one
 episode at a time, as on a single robot.
@@ -23,7 +25,7 @@ from pathlib import Path
 from ersac_hil.daemon.agents import AgentLink, Stopped
 from ersac_hil.daemon.store import RunRecord, Store
 from ersac_hil.stack import ChildFailed, Pair, Stack, cli_argv
-from ersac_hil.zenoh_session import make_config, open_session
+from ersac_hil.zenoh_session import open_session, resolve_config
 from protocol.zenoh import KeySpace
 
 from .trials import TrialSpec, TrialStore, run_trial
@@ -117,8 +119,10 @@ class Pool:
         if self.session is not None:
             return
         self.stack.start()
-        self.say("children " + " ".join(f"{c.name}={c.pid}" for c in self.stack.children))
-        self.session = open_session(make_config("client", connect=(self.stack.endpoint,)))
+        if self.stack.children:  # none when the pairs run elsewhere (``RemoteAgents``)
+            self.say("children " + " ".join(f"{c.name}={c.pid}" for c in self.stack.children))
+        options = self.stack.zenoh_options()
+        self.session = open_session(resolve_config(options), insecure=options.insecure)
         self.workers = [Worker(p, AgentLink(self.session, KeySpace(p.robot, p.prefix), EPISODE_TIMEOUT_S,
                                             self.stop)) for p in self.stack.pairs]
 

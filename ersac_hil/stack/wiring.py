@@ -8,11 +8,15 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from protocol.zenoh.keys import DEFAULT_PREFIX
 
 from .cpu import busy_poll_for
 from .process import GRACE_S, Child, ChildFailed, child_env, cli_argv
+
+if TYPE_CHECKING:
+    from ersac_hil.zenoh_session import ZenohOptions
 
 __all__ = ["Pair", "Stack"]
 
@@ -21,13 +25,14 @@ __all__ = ["Pair", "Stack"]
 class Pair:
     """One simulator/agent pair on its own CAN channel; its agent serves ``robot`` under
     the key prefix ``prefix`` (several pairs: one prefix each, so a run of robot ``robot``
-    can go to any of them)."""
+    can go to any of them). ``sim``/``agent``: their processes, ``None`` for a pair that runs
+    elsewhere (``remote.RemoteAgents``)."""
 
     robot: str
     prefix: str
     channel: str
-    sim: Child
-    agent: Child
+    sim: Child | None
+    agent: Child | None
 
 
 class Stack:
@@ -80,6 +85,11 @@ class Stack:
         self._description = [] if description is None else ["--description", description]
         self._busy_poll = busy_poll_for(pairs) if busy_poll is None else busy_poll
         logs.mkdir(parents=True, exist_ok=True)
+
+    def zenoh_options(self) -> ZenohOptions:
+        """How a session of this process (the caller's, a control-plane client's) reaches the router."""
+        from ersac_hil.zenoh_session import ZenohOptions
+        return ZenohOptions((self.endpoint,))
 
     def zenoh_args(self, role: str, bind: str | None = None) -> list[str]:
         """``--zenoh`` (and with ``secure``, ``--zenoh-config``) of a child in ``role``."""
@@ -165,7 +175,7 @@ class Stack:
     def check(self, children: Sequence[Child] | None = None) -> None:
         """``ChildFailed`` if a simulator or an agent (or one of ``children``) has exited."""
         watched = [c for p in self.pairs for c in (p.sim, p.agent)] if children is None else children
-        for child in watched:
+        for child in filter(None, watched):
             if not child.alive():
                 raise ChildFailed(f"{child.name} exited with {child.proc.returncode}; see {child.log_path}")
 

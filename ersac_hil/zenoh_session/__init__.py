@@ -26,7 +26,7 @@ configurations), ``session`` (opening), ``args`` (the command-line flags), ``rou
 embedded router), ``errors``; this package's face is the API above.
 """
 
-from .args import add_zenoh_arguments, zenoh_options
+from .args import add_zenoh_arguments, zenoh_argv, zenoh_options
 from .config import MODES, ZenohOptions, check_config, make_config, resolve_config
 from .endpoints import (DEFAULT_ENDPOINT, SECURE_PROTOCOLS, check_endpoint, free_tcp_port, is_loopback,
                         loopback_endpoint, split_endpoint)
@@ -40,6 +40,7 @@ __all__ = [
     "SECURE_PROTOCOLS",
     "ZenohOptions",
     "add_zenoh_arguments",
+    "zenoh_argv",
     "zenoh_options",
     "resolve_config",
     "is_loopback",

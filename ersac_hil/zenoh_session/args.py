@@ -7,7 +7,7 @@ import argparse
 from .config import ZenohOptions
 from .endpoints import DEFAULT_ENDPOINT
 
-__all__ = ["add_zenoh_arguments", "zenoh_options"]
+__all__ = ["add_zenoh_arguments", "zenoh_argv", "zenoh_options"]
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser, *, listens: bool = False) -> None:
@@ -29,3 +29,11 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, listens: bool = Fals
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
     """The :class:`ZenohOptions` of parsed :func:`add_zenoh_arguments` flags."""
     return ZenohOptions(tuple(args.zenoh or ()), args.zenoh_config, bool(args.insecure))
+
+
+def zenoh_argv(options: ZenohOptions) -> list[str]:
+    """The :func:`add_zenoh_arguments` flags that give ``options`` (a child process's command line)."""
+    argv = [arg for ep in options.endpoints for arg in ("--zenoh", ep)]
+    if options.config_file is not None:
+        argv += ["--zenoh-config", options.config_file]
+    return argv + (["--insecure"] if options.insecure else [])
