@@ -32,7 +32,7 @@ from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
                                      open_session, zenoh_argv, zenoh_options)
 from helpers.faults import Netns, netns_unavailable
-from helpers.processes import group_killed_on_exit
+from helpers.processes import group_killed_on_exit, running_with
 from helpers.synthetic_agent import SyntheticAgent
 from helpers.waiting import wait_until
 from protocol.zenoh import KeySpace
@@ -122,19 +122,6 @@ def site(tmp_path_factory) -> Iterator[Site]:
             assert netns.daemon not in listed and netns.robot not in listed, listed
 
 
-def _ours(marker: Path) -> list[int]:
-    """Processes still running with ``marker`` on their command line."""
-    pids = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            try:
-                if str(marker).encode() in (proc / "cmdline").read_bytes():
-                    pids.append(int(proc.name))
-            except OSError:
-                pass
-    return pids
-
-
 def _comparable(out: Path) -> dict:
     results = json.loads((out / "results.json").read_text())
     for key in NOT_COMPARED:
@@ -179,7 +166,7 @@ def test_the_fleet_variant_of_reproduce_bracing_quick_gives_the_local_results_js
     served = {line.split("--robot ")[1].split()[0]
               for log in (fleet / "logs").glob("daemon-*.log") for line in log.read_text().splitlines()[:1]}
     assert served == set(ROBOTS), served  # the learning runs went to both agents
-    assert not _ours(local) and not _ours(fleet)
+    assert not running_with(local) and not running_with(fleet)
     assert all(c.alive() for c in site.children)  # the pairs elsewhere are not ours to stop
 
 
@@ -199,22 +186,23 @@ def test_the_pairs_run_in_their_own_network_namespace(site):
     assert ns.daemon != ns.robot
 
 
-def test_bracing_sweep_on_agents_elsewhere_is_the_in_process_sweep_bit_for_bit(site, tmp_path):
-    """``bench/bracing_sweep.py`` in-process and ``--agents 'ubot$*'`` on the pairs of ``site``:
-    the same landscape and the same episodes, bit for bit (4 episodes)."""
-    sweep = [sys.executable, str(ROOT / "bench" / "bracing_sweep.py"), "--thetas", "0.3,0.7", "--episodes", "2",
+def test_bracing_sweep_in_process_on_pairs_it_starts_and_on_agents_elsewhere_is_bit_for_bit_the_same(site, tmp_path):
+    """``bench/bracing_sweep.py`` in its own process, on one pair it starts (``--pairs 1``) and
+    on the pairs of ``site`` (``--agents 'ubot$*'``): the same landscape and episodes (2 each)."""
+    sweep = [sys.executable, str(ROOT / "bench" / "bracing_sweep.py"), "--thetas", "0.5", "--episodes", "2",
              "--bootstrap", "20"]
-    code, text, _ = _run([*sweep, "--out", str(tmp_path / "here")], 600)
-    assert code == 0, text
-    code, text, _ = _run(site.requester([*sweep, "--agents", "ubot$*", "--zenoh-config", str(site.configs["daemon"]),
-                                         "--out", str(tmp_path / "there")]), 600)
-    assert code == 0, text
+    runs = {"here": sweep, "pairs": [*sweep, "--pairs", "1"],
+            "agents": site.requester([*sweep, "--agents", "ubot$*", "--zenoh-config", str(site.configs["daemon"])])}
+    docs = {}
+    for name, argv in runs.items():
+        code, text, _ = _run([*argv, "--out", str(tmp_path / name)], 600)
+        assert code == 0, text
+        docs[name] = json.loads((tmp_path / name / "landscape.json").read_text())
+        for key in ("wall_s", "reruns"):
+            docs[name].pop(key)
     assert "on 2 agent(s) behind the router: ubot1, ubot2" in text, text
-    here, there = (json.loads((tmp_path / d / "landscape.json").read_text()) for d in ("here", "there"))
-    for doc in (here, there):
-        doc.pop("wall_s")
-        doc.pop("reruns")
-    assert here == there
+    assert docs["pairs"] == docs["here"] and docs["agents"] == docs["here"]
+    assert not running_with(tmp_path)
 
 
 # --------------------------------------------------------------------------- refusals

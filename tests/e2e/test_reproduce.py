@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from ersac_hil.daemon.store import Store
-from helpers.processes import children, gone, group_killed_on_exit, lines_until
+from helpers.processes import children, gone, group_killed_on_exit, lines_until, running_with
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -30,20 +30,6 @@ def _reproduce(out: Path) -> subprocess.Popen:
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
 
-def _ours(out: Path) -> list[int]:
-    """Processes still running with ``out`` on their command line (the daemons) or children of
-    the stack the output names."""
-    pids = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            try:
-                if str(out).encode() in (proc / "cmdline").read_bytes():
-                    pids.append(int(proc.name))
-            except OSError:
-                pass
-    return pids
-
-
 @pytest.mark.timeout(900)  # --quick is 55 episodes: minutes on a loaded 2-core machine
 def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
     out = tmp_path / "results"
@@ -53,7 +39,7 @@ def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
         rest, _ = proc.communicate(timeout=60)
     first = "".join(lines) + rest
     assert proc.returncode == 130 and "interrupted" in first, first
-    assert all(gone(pid) for pid in children(first).values()) and not _ours(out), first
+    assert all(gone(pid) for pid in children(first).values()) and not running_with(out), first
     stored = int(re.findall(r"\] (\d+)/\d+ episodes", first)[-1])
 
     with group_killed_on_exit(_reproduce(out)) as proc:
@@ -61,7 +47,7 @@ def test_quick_bracing_is_interrupted_resumed_and_reported(tmp_path):
     assert proc.returncode == 0, second
     match = re.search(r"(\d+) episodes to have \((\d+) already stored\)", second)
     assert match and int(match.group(2)) >= stored > 0, second
-    assert not _ours(out)
+    assert not running_with(out)
 
     results = json.loads((out / "results.json").read_text())
     bracing = results["bracing"]
@@ -99,4 +85,4 @@ def test_quick_contexts_with_interleaved_lifting_runs_carry_the_option_to_every_
         with Store(db, readonly=True) as store:
             (run,) = store.runs()
             assert run.settings["interleave_every"] == 2 and run.status == "finished", db
-    assert not _ours(out)
+    assert not running_with(out)
