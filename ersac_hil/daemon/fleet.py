@@ -307,7 +307,8 @@ def reach_agents(options: ZenohOptions, source: str, prefix: str, wait_s: float,
 
     try:
         config = resolve_config(options)
-        check_permitted(identity_role(options), "run")
+        role = identity_role(options)
+        check_permitted(role, "run")
         session = open_session(config, insecure=options.insecure)
     except NotPermitted as exc:
         raise NoAgents(f"not permitted: {exc}") from None
@@ -315,5 +316,21 @@ def reach_agents(options: ZenohOptions, source: str, prefix: str, wait_s: float,
         raise NoAgents(str(exc)) from None
     try:
         return find_agents(session, prefix, source, wait_s, stop)
+    except NoAgents as exc:
+        name = _certificate_name(options) if role is None else None
+        if name is None:
+            raise
+        raise NoAgents(f"{exc}; not permitted? this identity, {name!r}, is no role of ersac_hil.roles, and a "
+                       "router's access control drops unseen what an identity may not do") from None
     finally:
         session.close()
+
+
+def _certificate_name(options: ZenohOptions) -> str | None:
+    """The common name of the client certificate of ``options``' config file, if any."""
+    from ersac_hil.certs import CertError, role_of_config
+
+    try:
+        return role_of_config(options.config_file) if options.config_file else None
+    except CertError:
+        return None

@@ -243,6 +243,35 @@ def test_an_identity_whose_role_may_not_request_episodes_is_not_permitted(tmp_pa
     assert not out.exists()
 
 
+def test_an_identity_the_routers_access_control_does_not_know_is_told_not_permitted(site, tmp_path):
+    """A certificate of the fleet's CA whose name is no role ('intruder'): the router admits the
+    session and its access control drops everything unseen; after the wait the refusal says
+    "not permitted?" and why, not only that nothing answered."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    from ersac_hil import certs
+
+    made = site.configs["daemon"].parent
+    ca_key = serialization.load_pem_private_key((made / "ca.key").read_bytes(), None)
+    ca = x509.load_pem_x509_certificate((made / "ca.crt").read_bytes())
+    key = ec.generate_private_key(ec.SECP256R1())
+    (tmp_path / "ca.crt").write_bytes((made / "ca.crt").read_bytes())
+    (tmp_path / "intruder.key").write_bytes(certs._key_pem(key))
+    (tmp_path / "intruder.crt").write_bytes(
+        certs._issue("intruder", key, ca_key, ca.subject, 1).public_bytes(serialization.Encoding.PEM))
+    config = tmp_path / "intruder.json5"
+    config.write_bytes(certs._json5("intruder", certs.client_config("intruder", tmp_path, [site.endpoint])))
+    out = tmp_path / "out"
+    code, text, _ = _run(site.requester(_reproduce("--out", str(out), "--agents", "ubot$*", "--zenoh-config",
+                                                   str(config), "--agent-wait", "2")), 120)
+    lines = text.strip().splitlines()
+    assert code == 2 and len(lines) == 1, text
+    assert "0 answered" in text and "not permitted? this identity, 'intruder', is no role" in text, text
+    assert not out.exists()
+
+
 def test_a_key_expression_no_agent_answers_says_how_many_did(tmp_path, capsys):
     """A router with one agent, lab1, and ``--agents 'ubot$*'``: refused after the wait, saying
     0 answered and which agents under the prefix did."""
