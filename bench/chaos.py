@@ -1,6 +1,7 @@
 """The faults of a real deployment, measured: each against the run without it.
 
-    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition,rogue-sync,...] [--episodes 6] [--seed 3]
+    python bench/chaos.py [--faults kill-all,router-restart,disk-full,partition,partition-agent,rogue-sync,...]
+                          [--episodes 6] [--seed 3]
 
 Router, simulator, agent and daemon as separate processes on loopback (the partition: across
 two network namespaces made for it, skipped where they cannot be made), a real SQLite store,
@@ -11,7 +12,9 @@ end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 * router-restart: the router SIGKILLed mid-episode and started again on its endpoint;
 * disk-full: no file of the daemon may grow (``RLIMIT_FSIZE`` 0) after two episodes; then a
   daemon with space started again;
-* partition: the daemon's veth down for 10 s mid-episode, then up;
+* partition: the daemon's veth down for 10 s mid-episode, then up (the router beside the robot);
+* partition-agent: the robot's veth down for 10 s mid-episode, then up (the router beside the
+  daemon: the agent, running the episode on, is cut off from it);
 * rogue-KIND: a faulty node on the robot's CAN bus while the episode it hit runs, one row per
   kind: rogue-sync (a second SYNC producer), rogue-tpdo-twice (a forged TPDO of the right
   length, so twice in one cycle), rogue-wrong-length (a PDO one byte short), rogue-sdo-answer
@@ -39,7 +42,8 @@ for key, value in (("OPENBLAS_NUM_THREADS", "1"), ("OMP_NUM_THREADS", "1"), ("MU
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from helpers.faults import FAULTS, RUN_S, Netns, Outcome, Rig, netns_unavailable, reference_run, tally  # noqa: E402
+from helpers.faults import (FAULTS, NETNS_FAULTS, RUN_S, Outcome, faulted_rig, netns_unavailable,  # noqa: E402
+                            reference_run, tally)
 
 
 def _seconds(value: float | None) -> str:
@@ -73,19 +77,12 @@ def main(argv: list[str] | None = None) -> int:
               f"({time.monotonic() - started:.0f} s)", flush=True)
         rows = []
         for name in names:
-            netns = None
-            if name == "partition":
-                reason = netns_unavailable()
-                if reason:
-                    rows.append(_row(name, None, reference, f"skipped: {reason}"))
-                    continue
-                netns = Netns()
-            try:
-                with Rig(work / name, args.seed, args.episodes, netns) as rig:
-                    outcome = FAULTS[name](rig)
-            finally:
-                if netns is not None:
-                    netns.close()
+            reason = netns_unavailable() if name in NETNS_FAULTS else None
+            if reason:
+                rows.append(_row(name, None, reference, f"skipped: {reason}"))
+                continue
+            with faulted_rig(name, work / name, args.seed, args.episodes) as rig:
+                outcome = FAULTS[name](rig)
             rows.append(_row(name, outcome, reference))
             print(f"{name}: done", flush=True)
     header = ["fault", "detected after", "recovered after", "lost", "duplicated", "differing",

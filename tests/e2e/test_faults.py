@@ -102,6 +102,31 @@ def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference,
     _exact(reference, outcome)
 
 
+def test_a_partition_of_the_agent_retries_the_episode_and_takes_no_late_answer(reference, tmp_path, netns):
+    """The agent and its simulator cut off from the router (beside the daemon) for 10 s
+    mid-episode: the agent runs the episode to its end and answers into the cut; the daemon sees
+    the agent vanish (``lost``) and, once the agent's session is back (the same Zenoh session,
+    its tokens and queryable declared again), asks the episode again under a new request id
+    (``<run>.<idx>.<attempt>``). The agent's answer to the cut attempt is never taken for the
+    retry's (the daemon takes a reply only to its own query, from a session holding the
+    agent's session token, for the id it asked: test_daemon.py tests the last with such a late
+    answer in the retry's query), and the run ends exactly as without the cut."""
+    with Rig(tmp_path, SEED, EPISODES, netns, router_beside="daemon") as rig:
+        outcome = partition(rig)
+    assert all(gone(pid) for pid in rig.pids)
+    assert outcome.exits == (0,), outcome.output
+    assert outcome.detected_s is not None, outcome.output  # the daemon saw the agent go
+    assert outcome.during is not None
+    (hit,) = [(idx, attempt) for idx, attempt, status in outcome.during.attempts if status == "pending"]
+    attempts = outcome.history.attempts
+    assert (*hit, "lost") in attempts, (hit, attempts, outcome.output)
+    answered = [status for eid, status in outcome.answered if eid.endswith(f".{hit[0]:05d}.{hit[1]}")]
+    assert answered == ["ok"], (hit, outcome.answered)  # run to its end behind the cut; not taken
+    (ok,) = [attempt for idx, attempt, status in attempts if idx == hit[0] and status == "ok"]
+    assert ok > hit[1]  # the retry, under its own id
+    _exact(reference, outcome)
+
+
 REASON = {"sync": "a frame of 0x080, which no node of the robot sends", "tpdo-twice": "twice in one cycle",
           "wrong-length": "bytes, its map has", "sdo-answer": "an SDO answer from imu to no request",
           "babbler": "a frame of 0x001, which no node of the robot sends", "error-frame": "error frame 0x000"}

@@ -16,7 +16,8 @@ import signal
 import subprocess
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,9 +25,9 @@ from ersac_hil.daemon.store import Store
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import free_tcp_port
 
-__all__ = ["FAULTS", "ROGUE_NODES", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally", "disk_full", "history",
-           "kill_all", "netns_unavailable", "partition", "reference_run", "rogue_can", "rogue_frames",
-           "router_restart", "tally", "wait"]
+__all__ = ["FAULTS", "NETNS_FAULTS", "ROGUE_NODES", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally",
+           "disk_full", "faulted_rig", "history", "kill_all", "netns_unavailable", "partition", "reference_run",
+           "robot_cob_ids", "rogue_can", "rogue_frames", "router_restart", "tally", "wait"]
 
 ROBOT = "ubot1"
 TASK = "bracing"
@@ -133,8 +134,8 @@ def netns_unavailable() -> str | None:
 
 class Netns:
     """Two network namespaces joined by a veth pair, made here and deleted by :meth:`close`:
-    ``daemon`` (address ``DAEMON_IP``) and ``robot`` (``ROBOT_IP``, loopback up). Only these
-    two addresses, inside the two namespaces; nothing in the machine's own namespace."""
+    ``daemon`` (address ``DAEMON_IP``) and ``robot`` (``ROBOT_IP``), loopback up in both. Only
+    these two addresses, inside the two namespaces; nothing in the machine's own namespace."""
 
     DAEMON_IP = "10.199.0.1"
     ROBOT_IP = "10.199.0.2"
@@ -142,15 +143,16 @@ class Netns:
     def __init__(self) -> None:
         tag = uuid.uuid4().hex[:8]
         self.daemon, self.robot = f"ersac-d-{tag}", f"ersac-r-{tag}"
-        self._link = f"vd{tag}"
+        self._ends = {"daemon": f"vd{tag}", "robot": f"vr{tag}"}
         self._made: list[str] = []
         try:
             for ns in (self.daemon, self.robot):
                 self._ip("netns", "add", ns)
                 self._made.append(ns)
-            self._ip("link", "add", self._link, "netns", self.daemon, "type", "veth", "peer", "name", f"vr{tag}",
-                     "netns", self.robot)
-            for ns, dev, ip in ((self.daemon, self._link, self.DAEMON_IP), (self.robot, f"vr{tag}", self.ROBOT_IP)):
+            self._ip("link", "add", self._ends["daemon"], "netns", self.daemon, "type", "veth", "peer", "name",
+                     self._ends["robot"], "netns", self.robot)
+            for ns, dev, ip in ((self.daemon, self._ends["daemon"], self.DAEMON_IP),
+                                (self.robot, self._ends["robot"], self.ROBOT_IP)):
                 self._ip("-n", ns, "addr", "add", f"{ip}/30", "dev", dev)
                 self._ip("-n", ns, "link", "set", dev, "up")
                 self._ip("-n", ns, "link", "set", "lo", "up")
@@ -168,9 +170,11 @@ class Netns:
         """The argv prefix running a command inside ``ns`` (``ip netns exec`` execs it: same pid)."""
         return ["ip", "netns", "exec", ns]
 
-    def link(self, up: bool) -> None:
-        """The daemon's end of the veth up or down: a partition between daemon and robot."""
-        self._ip("-n", self.daemon, "link", "set", self._link, "up" if up else "down")
+    def link(self, up: bool, side: str = "daemon") -> None:
+        """``side``'s end of the veth (``daemon`` or ``robot``) up or down: a partition
+        between the two namespaces, as seen first by that side."""
+        ns = self.daemon if side == "daemon" else self.robot
+        self._ip("-n", ns, "link", "set", self._ends[side], "up" if up else "down")
 
     def close(self) -> None:
         for ns in reversed(self._made):  # deleting a namespace deletes its veth end and the peer
@@ -185,22 +189,26 @@ class Rig:
     started and stopped on its own, so that a fault can hit any of them.
 
     The router's endpoint is fixed at construction (a restarted router listens where the
-    sessions reconnect). With ``netns``, the daemon runs in its namespace and the router,
-    simulator and agent in the robot's, the daemon connecting over the veth.
+    sessions reconnect). With ``netns``, the daemon runs in its namespace and the simulator and
+    agent in the robot's; the router beside the robot (``router_beside="robot"``: the daemon
+    connects over the veth) or beside the daemon (``"daemon"``: the agent connects over it).
 
     Args:
         work: directory of the store (``work/run.db``) and the children's logs.
         seed: the run's seed (daemon ``--seed``; the simulator's base seed too).
         episodes: the run's budget.
         netns: run across this namespace pair.
+        router_beside: with ``netns``, the namespace of the router.
     """
 
-    def __init__(self, work: Path, seed: int, episodes: int, netns: Netns | None = None) -> None:
+    def __init__(self, work: Path, seed: int, episodes: int, netns: Netns | None = None,
+                 router_beside: str = "robot") -> None:
         self.work, self.seed, self.episodes, self.netns = work, seed, episodes, netns
+        self.router_beside = router_beside
         self.db = work / "run.db"
         self.logs = work / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
-        host = Netns.ROBOT_IP if netns else "127.0.0.1"
+        host = (Netns.ROBOT_IP if router_beside == "robot" else Netns.DAEMON_IP) if netns else "127.0.0.1"
         self.endpoint = f"tcp/{host}:{free_tcp_port()}"
         self.can_channel = ""
         """The simulator/agent CAN-over-Zenoh channel (``name@endpoint`` of the simulator's listener)."""
@@ -233,9 +241,18 @@ class Rig:
     def _robot_ns(self) -> str | None:
         return self.netns.robot if self.netns else None
 
+    def _daemon_ns(self) -> str | None:
+        return self.netns.daemon if self.netns else None
+
+    @property
+    def cut_off(self) -> str:
+        """The namespace a partition cuts off from the router: the one without it."""
+        return "daemon" if self.router_beside == "robot" else "robot"
+
     def start_router(self) -> Child:
         insecure = ["--insecure"] if self.netns else []
-        router = self._launch("router", cli_argv("router", "--zenoh", self.endpoint, *insecure), self._robot_ns())
+        router = self._launch("router", cli_argv("router", "--zenoh", self.endpoint, *insecure),
+                              self._robot_ns() if self.router_beside == "robot" else self._daemon_ns())
         router.wait_for(r"Zenoh router: ", START_S)
         return router
 
@@ -249,7 +266,7 @@ class Rig:
                            self._robot_ns())
         sim.wait_for(r"^simulator: \d+ nodes", START_S)
         insecure = ["--insecure"] if self.netns else []
-        self._launch("agent", cli_argv("agent", "--robot", ROBOT, "--bus-interface", "zenoh", "--bus-channel",
+        self._launch("agent", cli_argv("-v", "agent", "--robot", ROBOT, "--bus-interface", "zenoh", "--bus-channel",
                                        self.can_channel, "--zenoh", self.endpoint, *insecure),
                      self._robot_ns()).wait_for(r"^agent ready: ", START_S)
 
@@ -259,7 +276,7 @@ class Rig:
         return self._launch("daemon", cli_argv(
             "daemon", "--robot", ROBOT, "--task", TASK, "--episodes", str(self.episodes), "--seed", str(self.seed),
             "--kappa", "2", "--zenoh", self.endpoint, *insecure, "--db", str(self.db), "--backoff", "0.05,0.5",
-            "--agent-wait", "300"), self.netns.daemon if self.netns else None)
+            "--agent-wait", "300"), self._daemon_ns())
 
     def start(self) -> Rig:
         self.start_router()
@@ -321,7 +338,9 @@ class Outcome:
     daemon's exit statuses (one per start, in order); ``detected_s``, seconds from the fault to
     its first sign (a daemon line other than progress, or the daemon's exit; ``None``: nothing
     showed); ``recovered_s``, seconds from the end of the fault (restart, link up) until the
-    next ok episode was stored; ``output``, everything the daemon printed."""
+    next ok episode was stored; ``output``, everything the daemon printed; ``answered``, the
+    agent's own account of the episodes it ran to their end, (episode id, status) in order
+    (whether or not its answer reached the daemon)."""
 
     fault: str
     history: History
@@ -330,6 +349,7 @@ class Outcome:
     detected_s: float | None
     recovered_s: float | None
     output: str
+    answered: tuple[tuple[str, str], ...] = ()
 
 
 def _mid_episode(rig: Rig, after: int) -> History:
@@ -361,7 +381,8 @@ def _finish(rig: Rig, fault: str, during: History | None, exits: Sequence[int], 
         detected = None if seen is None else seen - t_fault
     h = history(rig.db)
     assert h is not None
-    return Outcome(fault, h, during, (*exits, code), detected, _recovered(rig, t_end_wall), rig.output())
+    answered = tuple(m.groups() for m in re.finditer(rf"episode (\S+) {TASK}: (\w+) cost", rig.output("agent")))
+    return Outcome(fault, h, during, (*exits, code), detected, _recovered(rig, t_end_wall), rig.output(), answered)
 
 
 def kill_all(rig: Rig) -> Outcome:
@@ -404,17 +425,20 @@ def disk_full(rig: Rig) -> Outcome:
 
 
 def partition(rig: Rig) -> Outcome:
-    """The daemon's link to the robot's network down for ``PARTITION_S`` mid-episode, then up."""
+    """The link between the two namespaces down for ``PARTITION_S`` mid-episode, then up: the
+    side without the router (``Rig.cut_off``: the daemon, or the agent with its simulator) cut
+    off. ``during``: the store when the link went down (the attempt it cut pending)."""
     assert rig.netns is not None
     rig.start()
-    _mid_episode(rig, 2)
+    during = _mid_episode(rig, 2)
     t_fault = time.monotonic()
-    rig.netns.link(False)
+    rig.netns.link(False, rig.cut_off)
     try:
         time.sleep(PARTITION_S)  # the fault's duration, not a synchronisation
     finally:
-        rig.netns.link(True)
-    return _finish(rig, "partition", None, (), t_fault, time.time())
+        rig.netns.link(True, rig.cut_off)
+    return _finish(rig, "partition" if rig.cut_off == "daemon" else "partition-agent", during, (), t_fault,
+                   time.time())
 
 
 ROGUE_NODES: dict[str, str] = {
@@ -427,6 +451,21 @@ ROGUE_NODES: dict[str, str] = {
 }
 """The faulty CAN nodes of :func:`rogue_can`: kind -> what it sends every ``ROGUE_TICK_S``."""
 ROGUE_TICK_S = 0.02
+
+
+def robot_cob_ids() -> set[int]:
+    """Every COB-ID of the robot's own traffic (the board profile): NMT, SYNC, every node's
+    PDOs, EMCY, SDO requests and answers and heartbeats, and the agent's heartbeat."""
+    from protocol.can import AGENT_NODE_ID, cobid
+    from protocol.can.devices import DEVICES
+    from protocol.can.pdo import pdo_maps
+
+    ids = {cobid.NMT, cobid.SYNC, cobid.heartbeat(AGENT_NODE_ID)}
+    for dev in DEVICES:
+        ids |= {p.cob_id for p in pdo_maps(dev)}
+        ids |= {cobid.emcy(dev.node_id), cobid.sdo_rx(dev.node_id), cobid.sdo_tx(dev.node_id),
+                cobid.heartbeat(dev.node_id)}
+    return ids
 
 
 def rogue_frames(kind: str) -> list:
@@ -487,7 +526,24 @@ def rogue_can(rig: Rig, kind: str = "sync") -> Outcome:
 
 FAULTS: dict[str, Callable[[Rig], Outcome]] = {
     "kill-all": kill_all, "router-restart": router_restart, "disk-full": disk_full, "partition": partition,
-    **{f"rogue-{kind}": functools.partial(rogue_can, kind=kind) for kind in ROGUE_NODES}}
+    "partition-agent": partition, **{f"rogue-{kind}": functools.partial(rogue_can, kind=kind) for kind in ROGUE_NODES}}
+NETNS_FAULTS = {"partition": "robot", "partition-agent": "daemon"}
+"""The faults run across two network namespaces -> the namespace of the router (``Rig.router_beside``;
+the other side is the one cut off)."""
+
+
+@contextmanager
+def faulted_rig(fault: str, work: Path, seed: int, episodes: int) -> Iterator[Rig]:
+    """The rig ``fault`` runs on (across a namespace pair made here and deleted after, for the
+    faults of :data:`NETNS_FAULTS`); every child stopped at the end."""
+    beside = NETNS_FAULTS.get(fault)
+    netns = Netns() if beside else None
+    try:
+        with Rig(work, seed, episodes, netns, router_beside=beside or "robot") as rig:
+            yield rig
+    finally:
+        if netns is not None:
+            netns.close()
 
 
 def reference_run(work: Path, seed: int, episodes: int, timeout_s: float) -> History:

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ from ersac_hil.daemon.runs import open_run, rebuild_engine, scenario_seed
 from ersac_hil.daemon.service import EXIT_FAILED, EXIT_STORE, MAX_REDRAWS
 from ersac_hil.daemon.store import Store
 from helpers import synthetic_agent
+from helpers.synthetic_agent import synthetic_terms
 from helpers.waiting import wait_for_store, wait_until
 from protocol.zenoh import KeySpace
 
@@ -329,6 +331,39 @@ def test_a_store_that_cannot_be_created_for_lack_of_space_exits_5_and_leaves_not
 
 
 # --------------------------------------------------------------------------- reply source
+def test_a_late_answer_to_an_earlier_attempt_is_not_the_answer_of_its_retry(router):
+    """How the daemon tells the answer of the request it asked from an answer of before: the
+    reply must come to its query, from a session holding the agent's session token, and carry
+    the id it asked (``<run>.<idx>.<attempt>``, a new one per attempt). An agent cut off mid-
+    episode comes back on the same Zenoh session (the same id, its token declared again), so
+    only the request id tells its answer to the cut attempt from the retry's: here that late
+    answer arrives in the retry's query, from the agent's own session, and is a bad reply, never
+    the retry's result."""
+    from ersac_hil.daemon.agents import AgentLink
+    from protocol.zenoh import EpisodeRequest, EpisodeResult, get_task
+
+    keys = KeySpace("late")
+    terms = synthetic_terms(0.5, 7)
+    late = EpisodeResult("20260101T000000-abcdef.00002.0", "bracing", "ok", terms, get_task("bracing").total_cost(terms))
+    agent, learner = router.open_client(), router.open_client()
+    tokens = [agent.liveliness().declare_token(keys.agent_alive),
+              agent.liveliness().declare_token(keys.agent_session(agent.info.zid()))]
+    answering = agent.declare_queryable(keys.episode_run, lambda query: query.reply(keys.episode_run, late.to_json()))
+    link = AgentLink(learner, keys, 20.0, threading.Event())
+    try:
+        link.wait_ready(20)
+        retry = EpisodeRequest("20260101T000000-abcdef.00002.1", "bracing", (0.5,), 7)
+        outcome = link.run(retry)
+    finally:
+        link.close()
+        for entity in (answering, *tokens):
+            entity.undeclare()
+        learner.close()
+        agent.close()
+    assert outcome.status == "bad_reply" and outcome.result is None, outcome
+    assert outcome.detail == f"reply for {late.episode_id}/bracing, asked {retry.episode_id}/bracing"
+
+
 def test_a_rogue_episode_queryable_never_feeds_the_learner(router, agent_factory, daemon_factory):
     """A second episode/run queryable answering schema-valid zero costs (the forgery of issue
     11) next to the real agent: the daemon takes only replies from the agent's session."""
