@@ -8,6 +8,7 @@ No pytest in here: the bench runs without it.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import re
@@ -340,7 +341,7 @@ class Outcome:
     showed); ``recovered_s``, seconds from the end of the fault (restart, link up) until the
     next ok episode was stored; ``output``, everything the daemon printed; ``answered``, the
     agent's own account of the episodes it ran to their end, (episode id, status) in order
-    (whether or not its answer reached the daemon)."""
+    (whether or not its answer reached the daemon); ``hits``, what :func:`rogue_can` hit."""
 
     fault: str
     history: History
@@ -350,6 +351,7 @@ class Outcome:
     recovered_s: float | None
     output: str
     answered: tuple[tuple[str, str], ...] = ()
+    hits: tuple[tuple[str, int, int], ...] = ()
 
 
 def _mid_episode(rig: Rig, after: int) -> History:
@@ -493,35 +495,42 @@ def rogue_frames(kind: str) -> list:
     return makers[kind]()
 
 
-def rogue_can(rig: Rig, kind: str = "sync") -> Outcome:
+def rogue_can(rig: Rig, kind: str = "sync", *more: str, after: int = 2) -> Outcome:
     """A rogue node on the robot's CAN bus mid-episode (its own bus on the simulator's listener)
     sending the frames of ``kind`` (:data:`ROGUE_NODES`) every ``ROGUE_TICK_S`` while the episode
-    it hit runs (the attempt pending when it came), then gone: however that attempt ended (a bus
-    fault, or ok if the agent missed the node), the run goes on without the node. ``during``:
-    the store when the node came."""
+    it hit runs (the attempt pending once ``after`` episodes are ok), then gone: however that
+    attempt ended (a bus fault, or ok if the agent missed the node), the run goes on without the
+    node. Each of ``more`` kinds then hits the next episode the same way (its attempt pending
+    once the one before is ok). ``during``: the store when the first node came; ``hits``: (kind,
+    idx, attempt) of every attempt a node hit."""
     import can
 
-    frames = rogue_frames(kind)
     rig.start()
     rogue = can.Bus(interface="zenoh", channel=rig.can_channel)
 
-    def running() -> bool:
+    def running(hit: tuple[int, int]) -> bool:
         h = history(rig.db)
         return h is None or any((idx, attempt) == hit and status == "pending" for idx, attempt, status in h.attempts)
+    hits, during, t_fault = [], None, None
     try:
-        during = _mid_episode(rig, 2)
-        (hit,) = [(idx, attempt) for idx, attempt, status in during.attempts if status == "pending"]
-        t_fault = time.monotonic()
-        deadline = t_fault + RUN_S
-        while running():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"the episode under {ROGUE_NODES[kind]} did not end")
-            for msg in frames:
-                rogue.send(msg)
-            time.sleep(ROGUE_TICK_S)  # the node's own rate, not a synchronisation
+        for n, name in enumerate((kind, *more)):
+            frames = rogue_frames(name)
+            seen = _mid_episode(rig, after + n)
+            (hit,) = [(idx, attempt) for idx, attempt, status in seen.attempts if status == "pending"]
+            hits.append((name, *hit))
+            if during is None:
+                during, t_fault = seen, time.monotonic()
+            deadline = time.monotonic() + RUN_S
+            while running(hit):
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"the episode under {ROGUE_NODES[name]} did not end")
+                for msg in frames:
+                    rogue.send(msg)
+                time.sleep(ROGUE_TICK_S)  # the node's own rate, not a synchronisation
     finally:
         rogue.shutdown()
-    return _finish(rig, f"rogue-{kind}", during, (), t_fault, time.time())
+    outcome = _finish(rig, "rogue-" + "+".join((kind, *more)), during, (), t_fault, time.time())
+    return dataclasses.replace(outcome, hits=tuple(hits))
 
 
 FAULTS: dict[str, Callable[[Rig], Outcome]] = {
