@@ -6,7 +6,7 @@ Foxglove, PlotJuggler, the ``mcap`` CLI, rosbags and ``ros2 bag`` open them. Log
 times are the messages' stamps [ns since the epoch].
 
 A file is written as ``<episode_id>.mcap.part`` and renamed to ``<episode_id>.mcap`` when it is
-complete, so a file under its name is always whole. This runs in the MCAP writer process
+complete, so a file under its name is always whole. This runs in the feed process
 (``writer``), never in the agent's.
 """
 from __future__ import annotations

@@ -80,9 +80,9 @@ def run(tmp_path_factory):
                             summaries.append(make_reader(f).get_summary())
                     writer = agent.feed.process._proc
                     wait_until(lambda: os.getpriority(os.PRIO_PROCESS, writer.pid) >= os.getpriority(os.PRIO_PROCESS, 0) + NICE,
-                               what="the writer process at a lower priority")
+                               what="the feed process at a lower priority")
                     writer_scheduler = os.sched_getscheduler(writer.pid)
-                assert writer.poll() == 0  # the agent's stop ended its writer process
+                assert writer.poll() == 0  # the agent's stop ended its feed process
                 wait_until(lambda: all(kind == zenoh.SampleKind.DELETE for kind in tokens.values()), what="tokens withdrawn")
                 sub.undeclare()
                 live.undeclare()
@@ -212,7 +212,7 @@ def test_a_feed_that_falls_behind_drops_counts_and_reports(tmp_path, caplog):
                 [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
                            session.get(keys.episode_run, payload=request.to_json(), timeout=90)]
                 feed = agent.feed
-                # the reply names the file at once; the writer process (niceness +10) renames it
+                # the reply names the file at once; the feed process (niceness +10) renames it
                 # when whole, and a stop gives a starved writer only 5 s
                 wait_until(lambda: (tmp_path / reply.mcap).is_file(), PATIENCE_S * 6, what="the whole MCAP file")
     finally:
@@ -225,7 +225,7 @@ def test_a_feed_that_falls_behind_drops_counts_and_reports(tmp_path, caplog):
 
 
 def test_recording_without_the_bridge_encodes_every_cycle_in_the_writer_process(tmp_path):
-    """``--record`` alone: no ROS 2 node, the writer process encodes each cycle's joint state
+    """``--record`` alone: no ROS 2 node, the feed process encodes each cycle's joint state
     and IMU from the telemetry itself."""
     bus = BusConfig("virtual", f"ros2-{uuid.uuid4().hex[:8]}")
     keys = KeySpace("ubot-rec")
