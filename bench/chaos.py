@@ -5,7 +5,7 @@
 
 Router, simulator, agent and daemon as separate processes on loopback (the partition: across
 two network namespaces made for it, skipped where they cannot be made), a real SQLite store,
-a few lock-step bracing episodes per run (``tests/helpers/faults.py``, the same faults the
+a few lock-step bracing episodes per run (``ersac_hil.stack.faults``, the same faults the
 end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 
 * kill-all: router, simulator, agent and daemon SIGKILLed at once mid-episode, then started again;
@@ -39,11 +39,8 @@ from pathlib import Path
 
 for key, value in (("OPENBLAS_NUM_THREADS", "1"), ("OMP_NUM_THREADS", "1"), ("MUJOCO_GL", "egl")):
     os.environ.setdefault(key, value)
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
-
-from helpers.faults import (FAULTS, NETNS_FAULTS, RUN_S, Outcome, faulted_rig, netns_unavailable,  # noqa: E402
-                            reference_run, tally)
+from ersac_hil.stack.faults import (FAULTS, NETNS_FAULTS, RUN_S, Outcome, faulted_rig,  # noqa: E402
+                                   netns_unavailable, reference_run, tally)
 
 
 def _seconds(value: float | None) -> str:

@@ -1,5 +1,5 @@
 """The faults of a real deployment, each against the run without it: router, simulator, agent
-and daemon as separate processes (``helpers.faults.Rig``), a real SQLite store, Zenoh on
+and daemon as separate processes (``ersac_hil.stack.faults.Rig``), a real SQLite store, Zenoh on
 loopback (the partition: across two network namespaces the test makes). After each fault the
 run must end by itself with exactly the ok episodes and updates of the uninterrupted run, bit
 for bit: none lost, none recorded twice, the interrupted episode run again.
@@ -16,7 +16,7 @@ import subprocess
 import pytest
 
 from ersac_hil.daemon.service import EXIT_STORE
-from helpers.faults import (ROGUE_NODES, RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all,
+from ersac_hil.stack.faults import (ROGUE_NODES, RUN_S, History, Netns, Outcome, Rig, disk_full, kill_all,
                             netns_unavailable, partition, reference_run, rogue_can, router_restart, tally)
 from helpers.processes import gone
 

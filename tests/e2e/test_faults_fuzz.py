@@ -2,7 +2,7 @@
 real CAN-over-Zenoh channel (its own bus on the simulator's listener) sends drawn frames (any
 11-bit id, the robot's own ids more often; any length and payload; error frames) while the real
 agent runs a lock-step bracing episode against the real simulator (router, simulator and agent
-as separate processes, ``helpers.faults.Rig``; the episode asked over Zenoh as the daemon asks
+as separate processes, ``ersac_hil.stack.faults.Rig``; the episode asked over Zenoh as the daemon asks
 it). Every episode must come back with the agent alive and be either a fault (a bus fault for
 what no node sends; a frame on a node's own EMCY or heartbeat id may read as that node's) or ok
 and bit for bit the episode of the same request without the node: never ok with another result.
@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.daemon.replies import decode_reply
 from ersac_hil.zenoh_session import make_config, open_session
-from helpers.faults import ROBOT, Rig, robot_cob_ids
+from ersac_hil.stack.faults import ROBOT, Rig, robot_cob_ids
 from helpers.processes import gone
 from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
 

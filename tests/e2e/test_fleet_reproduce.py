@@ -31,7 +31,7 @@ from ersac_hil.daemon.fleet import NoAgents, find_agents
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
                                      open_session, zenoh_argv, zenoh_options)
-from helpers.faults import Netns, netns_unavailable
+from ersac_hil.stack.faults import Netns, netns_unavailable
 from helpers.processes import group_killed_on_exit, running_with
 from helpers.synthetic_agent import SyntheticAgent
 from helpers.waiting import wait_until

@@ -3,8 +3,9 @@ simulator, the agent and the learner daemon as separate processes (``ersac-hil r
 agent/daemon``), each of which can be killed, restarted, cut off or starved of disk, and what a
 run's store holds afterwards compared with an uninterrupted run of the same seed.
 
-Used by ``tests/e2e/test_faults.py`` (asserts) and ``bench/chaos.py`` (measures and prints).
-No pytest in here: the bench runs without it.
+Used by ``tests/e2e/test_faults.py`` (asserts) and ``bench/chaos.py`` (measures and prints),
+on the stack's own process supervision (``Child``: a process group each, a log file, gone with
+this process). No pytest in here: the bench runs without it. Network namespaces need root.
 """
 from __future__ import annotations
 
@@ -23,8 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ersac_hil.daemon.store import Store
-from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import free_tcp_port
+
+from .process import Child, child_env, cli_argv
 
 __all__ = ["FAULTS", "NETNS_FAULTS", "ROGUE_NODES", "RUN_S", "History", "Netns", "Outcome", "Rig", "Tally",
            "disk_full", "faulted_rig", "history", "kill_all", "netns_unavailable", "partition", "reference_run",
