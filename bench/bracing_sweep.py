@@ -55,7 +55,8 @@ from ersac_hil.agent.bus import AgentBus  # noqa: E402
 from ersac_hil.agent.cia402 import agent_bus  # noqa: E402
 from ersac_hil.agent.episode import EpisodeRunner  # noqa: E402
 from ersac_hil.agent.policies import BracingPolicy  # noqa: E402
-from ersac_hil.daemon.fleet import Fleet, NoAgents, reach_agents  # noqa: E402
+from ersac_hil.daemon.discovery import NoAgents, reach_agents  # noqa: E402
+from ersac_hil.daemon.fleet import Fleet  # noqa: E402
 from ersac_hil.reproduce.runner import EPISODE_TIMEOUT_S  # noqa: E402
 from ersac_hil.stack import Stack  # noqa: E402
 from ersac_hil.stack.remote import RemoteAgents, add_agents_arguments, agents_from_args  # noqa: E402

@@ -39,8 +39,8 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from ersac_hil.daemon.discovery import NoAgents, reach_agents  # noqa: E402
 from ersac_hil.daemon.fleet import Fleet  # noqa: E402
-from ersac_hil.daemon.fleet import NoAgents, reach_agents  # noqa: E402
 from ersac_hil.stack import Stack, busy_poll_for  # noqa: E402
 from ersac_hil.stack.remote import Agents, RemoteAgents, add_agents_arguments, agents_from_args  # noqa: E402
 from ersac_hil.zenoh_session import open_session, resolve_config  # noqa: E402

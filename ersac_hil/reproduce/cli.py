@@ -89,7 +89,7 @@ def run_reproduce(experiment: str, sizes, out: Path, pairs: int, stop: threading
     a router that it finds (``pairs`` is ignored; none found: refused, nothing written), else
     ``pairs`` pairs are started here. Returns an exit code."""
     from ersac_hil.daemon.agents import Stopped
-    from ersac_hil.daemon.fleet import NoAgents, reach_agents
+    from ersac_hil.daemon.discovery import NoAgents, reach_agents
     from ersac_hil.stack import ChildFailed, Stack
     from ersac_hil.stack.remote import RemoteAgents
 

@@ -72,7 +72,7 @@ def agents_from_args(args: argparse.Namespace) -> tuple[Agents | None, str]:
 
 class RemoteAgents(Stack):
     """Simulator/agent pairs already running elsewhere behind a router: the agents of ``robots``
-    under ``prefix`` (``ersac_hil.daemon.fleet.reach_agents`` found them) are the pairs; no
+    under ``prefix`` (``ersac_hil.daemon.discovery.reach_agents`` found them) are the pairs; no
     process of theirs is started or stopped here. The children launched here (the
     daemons of ``reproduce``) and this process's sessions connect with ``options`` (the user's
     ``--zenoh``, ``--zenoh-config``, ``--insecure``: one identity for all)."""

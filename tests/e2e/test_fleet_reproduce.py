@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from ersac_hil.certs import init_certs
 from ersac_hil.cli import main as cli_main
-from ersac_hil.daemon.fleet import NoAgents, find_agents
+from ersac_hil.daemon.discovery import NoAgents, find_agents
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
                                      open_session, zenoh_argv, zenoh_options)
