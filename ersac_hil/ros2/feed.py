@@ -33,8 +33,10 @@ log = logging.getLogger(__name__)
 
 BATCH = 32
 """Items handed to the feed process in one pickle at most."""
-POLL_S = 0.002
-"""How often the thread looks for new items during an episode."""
+POLL_S = 0.01
+"""How often the thread looks for new items during an episode (two SYNC periods at 200 Hz: each
+look costs the agent's interpreter more than handing on a cycle's items, and the feed process
+runs behind anyway)."""
 
 
 class Feed:

@@ -161,3 +161,40 @@ def test_certs_init_refuses_a_ros_domain_out_of_range_and_writes_nothing(tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--ros-domain" in err[0] and "0..232" in err[0]
     assert not (tmp_path / "set").exists()
+
+
+def test_the_agents_feed_process_publishes_as_the_agent(fleet_deployment):
+    """``agent --ros2 --zenoh-config <the robot's config>``: the node lives in the agent's feed
+    process, on a session of its own with the agent's certificate, and the router lets its
+    tokens and samples through to an observer as the agent's own."""
+    import uuid
+
+    from ersac_hil.agent.service import AgentConfig, AgentService
+    from firmware_sim.nodes.simrobot import SimulatedRobot
+    from helpers.waiting import wait_until
+    from protocol.can.busconfig import BusConfig
+    from protocol.zenoh import EpisodeRequest, EpisodeResult, KeySpace
+
+    bus = BusConfig("virtual", f"acl-{uuid.uuid4().hex[:8]}")
+    robot, got = SimulatedRobot(bus), []
+    config = AgentConfig(robot="ubot1", bus=bus, zenoh_connect=(), ros2=Ros2Options(),
+                         zenoh_config=str(fleet_deployment.configs["agent-ubot1"]))
+    try:
+        with (_session(fleet_deployment, "observer") as observer, _session(fleet_deployment, "daemon") as daemon):
+            sub = observer.declare_subscriber("0/**", lambda sample: got.append(str(sample.key_expr).split("/")[2]))
+            with AgentService(config) as agent:
+                tokens = lambda: [names.parse_token(str(r.ok.key_expr))  # noqa: E731
+                                  for r in observer.liveliness().get("@ros2_lv/0/**", timeout=2)]
+                wait_until(lambda: len(tokens()) == 1 + len(messages.TOPICS), what="the node's tokens")
+                parsed = tokens()
+                assert {(t.kind, t.namespace) for t in parsed} == {("NN", "/ubot1"), ("MP", "/ubot1")}
+                assert {t.zid for t in parsed} != {str(agent.session.info.zid())}  # not the agent's session
+                request = EpisodeRequest("ep-acl1", "bracing", (0.5,), 5)
+                [reply] = [EpisodeResult.from_json(r.ok.payload) for r in
+                           daemon.get(KeySpace("ubot1").episode_run, payload=request.to_json(), timeout=90)]
+                wait_until(lambda: got.count("joint_states") >= round(reply.telemetry["n_cycles"]),
+                           what="every joint state at the observer")
+            sub.undeclare()
+    finally:
+        robot.close()
+    assert {"joint_states", "imu", "episode"} <= set(got)
