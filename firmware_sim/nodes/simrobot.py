@@ -7,7 +7,14 @@ node samples and sends its synchronous TPDOs. Real-time: SYNC applies commands, 
 answers from the present state at once (as a drive samples at SYNC; a CiA 402 drive whose
 SYNC commands are only targets takes them right after its answer), and a physics thread
 advances one period right after each answer; it steps on the wall clock (overruns counted)
-whenever no SYNC has come for half a period past its due time (the agent between episodes).
+whenever no SYNC has come for half a period past its due time (the agent between episodes),
+except from a scenario's start (``reset``) to the first SYNC after it: the test bench holds the
+robot in the scenario's initial state until the episode begins, as lock-step does (no plant time
+passes without a SYNC). Without the hold the plant ran on, its axes without torque, for as long
+as the agent took from the reset to its first SYNC: a few milliseconds on the boards, which
+enable with their first RPDO, but the whole power-up of seven CiA 402 drives (their state
+machines walked one by one over SDO: 0.1-0.5 s, 1 s on a loaded machine), in which the
+lifting arms sagged under the bottle and its grasp broke before the episode began.
 So a SYNC never waits for a physics step: on two cores under ``SCHED_FIFO`` a step running
 when a SYNC arrives held the receive thread off its processor and the GIL for as long as
 the step took (the bulk of the real-time tail, docs/performance.md). In lock-step the
@@ -56,6 +63,8 @@ class RobotStats:
     step_seconds: float = 0.0
     overruns: int = 0
     resets: int = 0
+    held: int = 0
+    """Real time: the physics thread's clock steps not taken, the scenario's start held."""
 
 
 def realtime_schedule(synced: bool, now: float, last: float, next_t: float, period: float) -> tuple[bool, float]:
@@ -119,6 +128,7 @@ class SimulatedRobot:
         self._stop = threading.Event()
         self._answered = threading.Event()  # real time: a SYNC was answered, step now
         self._sampled: tuple[list[int], list[int]] | None = None  # real time: counts after the last step
+        self._held = False  # real time: from a scenario reset to the first SYNC after it, not stepped
         self._physics: threading.Thread | None = None
         if realtime:
             self._physics = threading.Thread(target=self._run_realtime, name="physics", daemon=True)
@@ -153,6 +163,7 @@ class SimulatedRobot:
     def _on_sync(self, can_id, data, timestamp) -> None:
         after = self.targets_after_answer
         with self.lock:
+            self._held = False
             for node in self.nodes.values():
                 if node not in after:
                     node.apply_commands()
@@ -206,13 +217,16 @@ class SimulatedRobot:
             step, next_t = realtime_schedule(synced, now, last, next_t, period)
             if step:
                 with self.lock:
-                    self._step()
-                    try:
-                        axes = AxisCounts.sample(self.sim)
-                        self._sampled = (axes.values, self._row(axes))
-                    except ValueError:  # a NaN: the SYNC samples (and fails) as in lock-step
-                        self._sampled = None
-                last = now
+                    if self._held:  # the test bench holds the scenario's start (module doc)
+                        self.stats.held += 1
+                    else:
+                        self._step()
+                        try:
+                            axes = AxisCounts.sample(self.sim)
+                            self._sampled = (axes.values, self._row(axes))
+                        except ValueError:  # a NaN: the SYNC samples (and fails) as in lock-step
+                            self._sampled = None
+                        last = now
             if not synced and next_t < clock():
                 self.stats.overruns += 1
                 next_t = clock()
@@ -223,6 +237,7 @@ class SimulatedRobot:
         with self.lock:
             self.sim.reset(scenario, seed)
             self._sampled = None
+            self._held = self.realtime
             self.stats.resets += 1
             for node in self.nodes.values():
                 for index in _CONFIG_INDEXES:

@@ -199,6 +199,30 @@ def test_realtime_physics_steps_right_after_each_sync_answer_and_on_the_clock_wi
     assert after[len(steps):] == pytest.approx([answers[-1] + (1.5 + k) * period for k in range(3)])
 
 
+def test_realtime_holds_a_reset_scenario_at_its_start_until_the_first_sync():
+    """Real time: from the test bench's reset to the episode's first SYNC no plant time passes
+    (as in lock-step), however long the agent takes to power its drives up; from that SYNC on
+    the physics runs again."""
+    import uuid
+
+    from helpers.waiting import wait_until
+    from protocol.can.busconfig import BusConfig, open_network
+
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    with SimulatedRobot(config, realtime=True) as robot:
+        wait_until(lambda: robot.stats.cycles >= 3, what="the clock's steps before any reset")
+        robot.reset("lifting", 0)
+        held = robot.stats.held
+        wait_until(lambda: robot.stats.held >= held + 5, what="five periods of the clock held")
+        assert robot.sim.sim_time == 0.0 and not robot.sim.status.bottle_dropped
+        net = open_network(config)
+        try:
+            net.send_message(cobid.SYNC, b"")
+            wait_until(lambda: robot.sim.sim_time > 0.0, what="a step after the first SYNC")
+        finally:
+            net.disconnect()
+
+
 def test_realtime_physics_takes_no_second_step_for_a_sync_right_after_a_clock_step():
     period = 0.005
     steps = _physics_steps([0.0101 + k * period for k in range(5)], 0.031)  # the clock stepped at 10 ms

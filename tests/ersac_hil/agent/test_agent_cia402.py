@@ -28,6 +28,7 @@ from protocol.zenoh import EpisodeRequest
 pytestmark = pytest.mark.timeout(300)
 
 DESCRIPTION = load_description("ubot5-cia402")
+LIFT = (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2)
 
 
 def holding(robot) -> Commands:
@@ -75,7 +76,7 @@ def test_bracing_episodes_run_and_end_with_the_drives_disabled(rig):
 def test_lifting_streams_the_spline_from_the_host(rig):
     robot, bus = rig
     runner = EpisodeRunner(bus)
-    r = runner.run(runner.plan(EpisodeRequest("lift", "lifting", (1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2), 3)))
+    r = runner.run(runner.plan(EpisodeRequest("lift", "lifting", LIFT, 3)))
     assert r.status == "ok", r.detail
     assert r.detail.startswith("goal reached")  # the arms followed the spline to the goal height
     assert r.telemetry["final_bottle_height_m"] > 1.0
@@ -183,11 +184,55 @@ def test_real_time_episodes_with_the_host_torque_loop(tmp_path):
             patient_sdo(bus.nodes.values())
             patient_controllers(bus.nodes.values())
             runner = EpisodeRunner(bus)
-            for task, theta in (("bracing", [0.5]), ("lifting", [1.2, 1.4, 2.2, 0.9, 1.2, 1.2, 1.2])):
+            for task, theta in (("bracing", [0.5]), ("lifting", LIFT)):
                 r = runner.run(runner.plan(EpisodeRequest(f"rt-{task}", task, theta, 1)))
                 assert r.status == "ok", r.detail
                 assert r.telemetry["n_cycles"] >= 200 and "host_compute_p99_ms" in r.telemetry
+            assert_lifted(r)
         finally:
             bus.close()
     with SimulatedRobot(BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}"), description=description) as lockstep:
         assert lockstep.targets_after_answer == ()  # lock-step: as before, commands before the answer
+
+
+STALL_MS = 100.0
+"""A real-time period longer than this (20 periods) is the machine's stall, not the drives'."""
+
+
+def assert_lifted(r) -> None:  # noqa: ANN001 - an EpisodeResult
+    """The real-time lift reached the goal with the bottle held; a drop after the loop was
+    stalled for ``STALL_MS`` (a loaded machine stopping the agent for half a second: the robot
+    falls whatever its drives, measured at load ~20) is not judged."""
+    stalled = max(r.telemetry["sync_latency_max_ms"], r.telemetry["host_compute_max_ms"])
+    if r.failures["bottle_dropped"] and stalled > STALL_MS:
+        pytest.skip(f"the machine stalled the real-time loop for {stalled:.0f} ms; the lift is not judged")
+    assert r.detail.startswith("goal reached") and not r.failures["bottle_dropped"], r.detail
+    assert r.telemetry["final_bottle_height_m"] > 1.0
+
+
+def test_real_time_lifting_on_the_drives_reaches_the_goal():
+    """The drives' own impedance (CSP), SYNC on the wall clock against the real-time simulator:
+    the episode starts from the scenario's initial state and lifts the bottle to the goal as in
+    lock-step. The drives are powered up one by one over SDO after the test bench's reset and
+    before the first SYNC (torque off until then, 0.1-0.5 s); the bench holds the scenario's
+    start until that SYNC. Before, the plant ran on meanwhile: the arms sagged under the bottle
+    and its grasp broke before or just after the episode's start (seeds 0-2, both arm modes)."""
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    with SimulatedRobot(config, description=DESCRIPTION, realtime=True) as robot:
+        bus = Cia402Bus(config, DESCRIPTION, timing=replace(PATIENT, realtime=True)).open()
+        try:
+            bus.wait_for_nodes(timeout_s=PATIENCE_S)
+            patient_sdo(bus.nodes.values())
+            patient_controllers(bus.nodes.values())
+            runner = EpisodeRunner(bus)
+            r = runner.run(runner.plan(EpisodeRequest("rt-lift", "lifting", LIFT, 0)))
+            assert r.status == "ok", r.detail
+            assert robot.stats.held > 0  # the drives' power-up took periods of the clock
+            first = runner.last.samples[0]
+            robot.reset("lifting", 0)  # the scenario's initial state again
+            for side in ("left", "right"):
+                start = [robot.sim.axis(f"{j}_{side}").position for j in ("shoulder", "elbow")]
+                assert first.arm_positions(side) == pytest.approx(start, abs=1e-3), side
+            assert_lifted(r)
+        finally:
+            bus.close()
