@@ -57,16 +57,18 @@ from ersac_hil.agent import configure
 from ersac_hil.agent.errors import (BusDown, BusFault, ConfigRefused, HeartbeatLost, NodeMissing,
                                     PdoTimeout, SdoTimeout)
 from ersac_hil.agent.policies import ArmImpedance, Spline
-from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, CommandEncoder, Commands, Telemetry, TelemetryDecoder
+from ersac_hil.agent.layout import RobotLayout
+from ersac_hil.agent.telemetry import CommandEncoder, Commands, Telemetry, TelemetryDecoder
 from ersac_hil.agent.tpdos import TpdoCollector, foreign_frame
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from protocol.can import cobid
-from protocol.can.devices import DEVICES, HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
+from protocol.can.devices import HEARTBEAT_PERIOD_MS, SYNC_PERIOD_S, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network, send_frames
 from protocol.can.fastpath import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, BurstNotifier
 from protocol.can.lockstep import LOCKSTEP_PATIENCE_S
 from protocol.can.objects import Scale
 from protocol.can.pdo import PdoSpec, pdo_maps, pdo_struct
+from protocol.robot import RobotDescription, default_description
 
 log = logging.getLogger(__name__)
 
@@ -140,14 +142,21 @@ class CycleTimes:
 
 class AgentBus:
     """CANopen master of the uBot (see the module docstring). Not re-entrant: one
-    caller thread drives ``cycle`` and the SDO helpers."""
+    caller thread drives ``cycle`` and the SDO helpers.
 
-    cyclic: tuple[Device, ...] = CYCLIC
-    """The devices every SYNC cycle waits for (their heartbeats are checked before each SYNC)."""
+    ``description``: the robot (default: the default description); ``devices``: those of its
+    nodes this bus talks to (default: all). Where its joints are, which nodes take which
+    commands and which a cycle waits for is its ``layout``."""
 
-    def __init__(self, config: BusConfig, devices: tuple[Device, ...] = DEVICES,
-                 timing: BusTiming = BusTiming()) -> None:
+    def __init__(self, config: BusConfig, devices: tuple[Device, ...] | None = None,
+                 timing: BusTiming = BusTiming(), description: RobotDescription | None = None) -> None:
+        description = description or default_description()
+        devices = description.devices if devices is None else devices
         self.config, self.devices, self.timing = config, tuple(devices), timing
+        self.description = description
+        self.layout = RobotLayout.of(description, self.devices)
+        self.cyclic: tuple[Device, ...] = self.layout.cyclic
+        """The devices every SYNC cycle waits for (their heartbeats are checked before each SYNC)."""
         self._by_name = {d.name: d for d in self.devices}
         self._cyclic_names = tuple(d.name for d in self.cyclic)
         self.network: canopen.Network | None = None
@@ -200,10 +209,10 @@ class AgentBus:
                     sizes[pdo_map.cob_id] = pdo_struct(spec).size
                     self._tpdo_device[pdo_map.cob_id] = dev.name
                     self._tpdo_specs[pdo_map.cob_id] = spec
-            if dev in ACTUATED:
+            if dev in self.layout.actuated:
                 rpdos += [(dev.name, m.cob_id, pdo_struct(specs[("rpdo", n)]), specs[("rpdo", n)].keys)
                           for n, m in node.rpdo.map.items() if m.enabled]
-        known = _receivable(self.devices)
+        known = _receivable((*self.description.devices, *self.devices))
         self._tpdos, self._encoder = TpdoCollector(sizes, known), self._command_encoder(rpdos)
         if isinstance(net.notifier, BurstNotifier):  # CAN over Zenoh: a SYNC's TPDOs in one call per burst
             net.notifier.intercept(self._tpdos.take)
@@ -230,11 +239,11 @@ class AgentBus:
 
     def _command_encoder(self, rpdos: list) -> CommandEncoder:
         """``Commands`` -> the RPDO frames of a cycle (``rpdos``: the boards' RPDOs)."""
-        return CommandEncoder(rpdos)
+        return CommandEncoder(rpdos, self.layout)
 
     def _telemetry_decoder(self) -> TelemetryDecoder:
         """The TPDO frames of a cycle -> ``Telemetry``."""
-        return TelemetryDecoder(tuple(self._tpdo_specs.values()))
+        return TelemetryDecoder(tuple(self._tpdo_specs.values()), self.layout)
 
     def apply_impedance(self, impedance: ArmImpedance) -> None:
         """Stiffness and damping of (shoulder, elbow) on both arms, before NMT start."""
@@ -242,7 +251,7 @@ class AgentBus:
 
     def download_spline(self, side: str, spline: Spline) -> None:
         """Load ``spline`` for the arm ``side``; the commands' START_SPLINE rising edge starts it."""
-        configure.download_spline(self, configure.ARM_OF[side], spline)
+        configure.download_spline(self, self.layout.arm(side), spline)
 
     def enable_drives(self) -> None:
         """After NMT start, before the first cycle: the boards enable with the control word in
@@ -582,10 +591,11 @@ class AgentBus:
 
 
 def _receivable(devices: Iterable[Device]) -> frozenset[int]:
-    """The COB-IDs the robot's nodes send (every node of the robot, not only ``devices``):
-    TPDOs, EMCY, SDO answers, heartbeats. Any other frame the agent hears is foreign."""
+    """The COB-IDs the robot's nodes send (``devices``: every node of the robot, not only those
+    the bus talks to): TPDOs, EMCY, SDO answers, heartbeats. Any other frame the agent hears is
+    foreign."""
     ids: set[int] = set()
-    for dev in {*DEVICES, *devices}:
+    for dev in set(devices):
         ids |= {cobid.emcy(dev.node_id), cobid.sdo_tx(dev.node_id), cobid.heartbeat(dev.node_id)}
         ids |= {p.cob_id for p in pdo_maps(dev) if p.direction == "tpdo"}
     return frozenset(ids)

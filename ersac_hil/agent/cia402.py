@@ -40,7 +40,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ersac_hil.agent.bus import AgentBus, BusTiming, _sdo_errors
 from ersac_hil.agent.errors import ConfigRefused, DriveFault
 from ersac_hil.agent.policies import ArmImpedance, Spline
-from ersac_hil.agent.telemetry import ACTUATED, IMU_SCALES, JOINTS, STATUS_DEVICES, Commands, Telemetry
+from ersac_hil.agent.telemetry import IMU_SCALES, JOINTS, Commands, Telemetry
 from protocol.can import cia402
 from protocol.can.busconfig import BusConfig
 from protocol.can.cia402 import DriveScaling, Index, State
@@ -139,10 +139,7 @@ class Cia402Decoder:
         joint_of = {d.name: d.joints[0] for d in bus.drives}
         self._joint_of = joint_of
         self._imu = bus.description.imu.name
-        groups = {d.name: d.joints for d in ACTUATED}
-        node_of = {j: name for name, j in joint_of.items()}
-        self._groups = [tuple(node_of[j] for j in groups[name]) if name in groups else (name,)
-                        for name in STATUS_DEVICES]
+        self._groups = bus.layout.status_nodes
         electrical = []
         for joint in JOINTS:
             a = bus.axes[joint]
@@ -188,11 +185,9 @@ class Cia402Bus(AgentBus):
     """The CANopen master of a robot on CiA 402 drives (``description``: its nodes and axes)."""
 
     def __init__(self, config: BusConfig, description: RobotDescription, timing: BusTiming = BusTiming()) -> None:
-        self.description = description
         self.drives = tuple(d for d in description.devices if d.profile == "cia402")
         if tuple(sorted(j for d in self.drives for j in d.joints)) != tuple(sorted(JOINTS)):
             raise ValueError(f"{description.name}: CiA 402 drives for {sorted(JOINTS)} expected")
-        self.cyclic = self.drives + (description.device(description.imu.name),)
         self.axes = {a.name: a for a in description.axes}
         self.node_of = {d.joints[0]: d.name for d in self.drives}
         self.scalings = {a.name: scaling(a) for a in description.axes}
@@ -204,7 +199,7 @@ class Cia402Bus(AgentBus):
         """Per arm, the downloaded spline's (position, velocity) of each joint at the end of
         every SYNC period from its start."""
         self.last_telemetry: Telemetry | None = None
-        super().__init__(config, devices=description.devices, timing=timing)
+        super().__init__(config, timing=timing, description=description)
 
     # -- AgentBus hooks --------------------------------------------------------------------
     def _node(self, dev) -> canopen.RemoteNode:  # noqa: ANN001
@@ -348,4 +343,4 @@ def agent_bus(config: BusConfig, description: RobotDescription, timing: BusTimin
     board robot's ``AgentBus`` (its nodes from the description)."""
     if "cia402" in description.profiles:
         return Cia402Bus(config, description, timing)
-    return AgentBus(config, devices=description.devices, timing=timing)
+    return AgentBus(config, timing=timing, description=description)

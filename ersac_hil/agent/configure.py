@@ -1,7 +1,8 @@
 """SDO configuration of the robot before an episode (the I/O edge of the policies).
 
 All values in SI units, scaled with ``protocol.can.objects``; a refusal by a controller
-raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``.
+raises ``ConfigRefused`` (with the SDO abort code), a silent node ``SdoTimeout``. The arm boards
+are those of the bus's robot description (``AgentBus.layout``).
 """
 from __future__ import annotations
 
@@ -9,14 +10,11 @@ from typing import TYPE_CHECKING
 
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from protocol.can import objects as obj
-from protocol.can.devices import ARM_LEFT, ARM_RIGHT, TESTBENCH, Device
+from protocol.can.devices import TESTBENCH, Device
 from protocol.can.objects import Index, Scenario, spline_position_index, spline_velocity_index
 
 if TYPE_CHECKING:  # the bus calls the board functions here (its drive layer)
     from ersac_hil.agent.bus import AgentBus
-
-ARMS: tuple[Device, ...] = (ARM_LEFT, ARM_RIGHT)
-ARM_OF: dict[str, Device] = {"left": ARM_LEFT, "right": ARM_RIGHT}
 
 
 def reset_scenario(bus: AgentBus, scenario: Scenario, seed: int) -> None:
@@ -27,9 +25,10 @@ def reset_scenario(bus: AgentBus, scenario: Scenario, seed: int) -> None:
     bus.write(TESTBENCH, Index.RESET, 0, 1)
 
 
-def apply_impedance(bus: AgentBus, impedance: ArmImpedance, arms: tuple[Device, ...] = ARMS) -> None:
-    """Stiffness and damping of (shoulder, elbow) on every arm."""
-    for arm in arms:
+def apply_impedance(bus: AgentBus, impedance: ArmImpedance, arms: tuple[Device, ...] | None = None) -> None:
+    """Stiffness and damping of (shoulder, elbow) on every arm board (default: both of the bus's
+    robot)."""
+    for arm in bus.layout.arms if arms is None else arms:
         for sub, (k, d) in enumerate(zip(impedance.stiffness, impedance.damping), start=1):
             bus.write(arm, Index.STIFFNESS, sub, k, obj.STIFFNESS)
             bus.write(arm, Index.DAMPING, sub, d, obj.DAMPING)

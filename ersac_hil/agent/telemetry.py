@@ -3,8 +3,10 @@
 Both are frozen dataclasses; the CANopen encoding (counts, PDO layout) lives in ``bus.py``.
 ``Trace`` stacks the telemetry of an episode into arrays for the cost terms.
 
-Joint order everywhere is ``JOINTS`` (the ``joints`` of the devices in node-id order):
-``wheel_left, wheel_right, torso, shoulder_left, elbow_left, shoulder_right, elbow_right``.
+Joint order everywhere is ``JOINTS`` (the uBot's parts in ``layout.PARTS`` order):
+``wheel_left, wheel_right, torso, shoulder_left, elbow_left, shoulder_right, elbow_right``;
+which node and sub-index carries each, and which node takes which part's commands, is the robot
+description's (``layout.RobotLayout``), never a table here.
 """
 from __future__ import annotations
 
@@ -16,25 +18,30 @@ from typing import Any
 
 import numpy as np
 
+from ersac_hil.agent.layout import JOINTS, PARTS, STATUS_PARTS, RobotLayout, default_layout
 from protocol.can import objects as obj
-from protocol.can.devices import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, Device
 from protocol.can.objects import Control, Index, Status
 from protocol.can.pdo import PdoSpec, pdo_struct
+from protocol.robot.model import Device
 
-ACTUATED: tuple[Device, ...] = (WHEELS, TORSO, ARM_LEFT, ARM_RIGHT)
-"""Devices with motor axes (RPDO commands, axis telemetry)."""
-CYCLIC: tuple[Device, ...] = ACTUATED + (IMU,)
-"""Devices with synchronous TPDOs, i.e. what every SYNC cycle waits for."""
-JOINTS: tuple[str, ...] = tuple(j for d in ACTUATED for j in d.joints)
-"""Joint names in telemetry order, shape ``(7,)``."""
-JOINT_INDEX: dict[tuple[str, int], int] = {
-    (d.name, sub): JOINTS.index(j) for d in ACTUATED for sub, j in enumerate(d.joints, start=1)}
-"""(device name, axis sub-index) -> position in ``JOINTS``."""
-STATUS_DEVICES: tuple[str, ...] = tuple(d.name for d in CYCLIC)
+STATUS_DEVICES: tuple[str, ...] = STATUS_PARTS
+"""What each status word of ``Telemetry.status`` is of: the uBot's parts, then the IMU (the
+names of the default robot's boards)."""
+ACTUATED: tuple[Device, ...] = default_layout().actuated
+"""The default robot's nodes with motor axes (tests and benches on it; the agent's bus has the
+layout of its own description, ``AgentBus.layout``)."""
+CYCLIC: tuple[Device, ...] = default_layout().cyclic
+"""The default robot's nodes with synchronous TPDOs."""
 
-WHEELS_SLICE = slice(0, 2)
-TORSO_I = 2
-ARM_SLICES = {"left": slice(3, 5), "right": slice(5, 7)}
+
+def _part_slice(part: str) -> slice:
+    start = JOINTS.index(PARTS[part][0])
+    return slice(start, start + len(PARTS[part]))
+
+
+WHEELS_SLICE = _part_slice("wheels")
+TORSO_I = JOINTS.index("torso")
+ARM_SLICES = {"left": _part_slice("arm_left"), "right": _part_slice("arm_right")}
 
 AXIS_SCALES = {Index.POSITION: obj.POSITION, Index.VELOCITY: obj.VELOCITY,
                Index.CURRENT: obj.CURRENT, Index.VOLTAGE: obj.VOLTAGE}
@@ -64,21 +71,22 @@ class Commands:
     control: Control = Control.ENABLE
     arm_control: Control = Control.ENABLE
 
-    def raw(self, device: str) -> dict[tuple[int, int], int]:
-        """RPDO values of ``device`` as raw counts by (index, sub-index)."""
-        return _RAW_OF[device](*self.inputs(device))
+    def raw(self, part: str) -> dict[tuple[int, int], int]:
+        """RPDO values of the uBot board of ``part`` (``layout.PARTS``) as raw counts by
+        (index, sub-index)."""
+        return _RAW_OF[part](*self.inputs(part))
 
-    def inputs(self, device: str) -> tuple:
-        """The fields the RPDOs of ``device`` carry (``raw`` is a function of them alone)."""
-        if device == WHEELS.name:
+    def inputs(self, part: str) -> tuple:
+        """The fields the RPDOs of ``part``'s board carry (``raw`` is a function of them alone)."""
+        if part == "wheels":
             return self.wheel_torque, self.control
-        if device == TORSO.name:
+        if part == "torso":
             return self.torso_position, self.control
-        if device == ARM_LEFT.name:
+        if part == "arm_left":
             return self.arm_left, self.arm_control
-        if device == ARM_RIGHT.name:
+        if part == "arm_right":
             return self.arm_right, self.arm_control
-        raise KeyError(f"{device} takes no commands")
+        raise KeyError(f"{part} takes no commands")
 
 
 def _wheels_raw(torque: tuple[float, float], control: Control) -> dict[tuple[int, int], int]:
@@ -99,7 +107,7 @@ def _arm_raw(pose: tuple[float, float], control: Control) -> dict[tuple[int, int
             (Index.CONTROL, 0): int(control)}
 
 
-_RAW_OF = {WHEELS.name: _wheels_raw, TORSO.name: _torso_raw, ARM_LEFT.name: _arm_raw, ARM_RIGHT.name: _arm_raw}
+_RAW_OF = {"wheels": _wheels_raw, "torso": _torso_raw, "arm_left": _arm_raw, "arm_right": _arm_raw}
 
 
 class CommandEncoder:
@@ -110,24 +118,27 @@ class CommandEncoder:
 
     Args:
         rpdos: per RPDO in sending order: (device name, COB-ID, struct, field keys).
+        layout: which part each device is (default: the default robot's).
     """
 
-    def __init__(self, rpdos: Sequence[tuple[str, int, Any, tuple[tuple[int, int], ...]]]) -> None:
+    def __init__(self, rpdos: Sequence[tuple[str, int, Any, tuple[tuple[int, int], ...]]],
+                 layout: RobotLayout | None = None) -> None:
+        part_of = (layout or default_layout()).part_of
         self._devices: dict[str, list[tuple[int, Any, tuple[tuple[int, int], ...]]]] = {}
-        for name, cob_id, layout, keys in rpdos:
-            self._devices.setdefault(name, []).append((cob_id, layout, keys))
+        for name, cob_id, pdo, keys in rpdos:
+            self._devices.setdefault(part_of[name], []).append((cob_id, pdo, keys))
         self._last: dict[str, tuple[tuple, list[tuple[int, bytes]]]] = {}
 
     def encode(self, commands: Commands) -> list[tuple[int, bytes]]:
         """``(COB-ID, data)`` of every RPDO, devices in the order given."""
         frames: list[tuple[int, bytes]] = []
-        for name, rpdos in self._devices.items():
-            inputs = commands.inputs(name)
-            last = self._last.get(name)
+        for part, rpdos in self._devices.items():
+            inputs = commands.inputs(part)
+            last = self._last.get(part)
             if last is None or last[0] != inputs:
-                raw = commands.raw(name)
-                last = (inputs, [(cob_id, layout.pack(*[raw[k] for k in keys])) for cob_id, layout, keys in rpdos])
-                self._last[name] = last
+                raw = commands.raw(part)
+                last = (inputs, [(cob_id, pdo.pack(*[raw[k] for k in keys])) for cob_id, pdo, keys in rpdos])
+                self._last[part] = last
             frames += last[1]
         return frames
 
@@ -167,16 +178,15 @@ class Telemetry:
 
     @classmethod
     def decode(cls, cycle: int, raw: dict[str, dict[tuple[int, int], int]],
-               latency_s: float = 0.0) -> "Telemetry":
-        """From raw TPDO counts by device name and (index, sub-index)."""
+               latency_s: float = 0.0, layout: RobotLayout | None = None) -> "Telemetry":
+        """From raw TPDO counts of the uBot boards by device name and (index, sub-index)
+        (``layout``: the robot's, default the default robot's)."""
+        layout = layout or default_layout()
         axes = {index: [0.0] * len(JOINTS) for index in AXIS_SCALES}
-        for device in ACTUATED:
-            values = raw[device.name]
-            for sub in range(1, len(device.joints) + 1):
-                j = JOINT_INDEX[(device.name, sub)]
-                for index, scale in AXIS_SCALES.items():
-                    axes[index][j] = scale.from_raw(values[(index, sub)])
-        imu = raw[IMU.name]
+        for (name, sub), j in layout.joint_index.items():
+            for index, scale in AXIS_SCALES.items():
+                axes[index][j] = scale.from_raw(raw[name][(index, sub)])
+        imu = raw[layout.imu.name]
         return cls(cycle=cycle,
                    position=tuple(axes[Index.POSITION]), velocity=tuple(axes[Index.VELOCITY]),
                    current=tuple(axes[Index.CURRENT]), voltage=tuple(axes[Index.VOLTAGE]),
@@ -184,7 +194,7 @@ class Telemetry:
                        ("pitch", Index.PITCH), ("pitch_rate", Index.PITCH_RATE),
                        ("pitch_acc", Index.PITCH_ACCELERATION), ("acc_x", Index.ACCELERATION_X),
                        ("acc_z", Index.ACCELERATION_Z))},
-                   status=tuple(int(raw[d][(Index.STATUS, 0)]) for d in STATUS_DEVICES),
+                   status=tuple(int(raw[layout.board(part).name][(Index.STATUS, 0)]) for part in STATUS_PARTS),
                    latency_s=latency_s)
 
     # -- named accessors ------------------------------------------------------------------
@@ -243,9 +253,11 @@ class TelemetryDecoder:
     Args:
         tpdos: the synchronous TPDO maps (``protocol.can.pdo.PdoSpec``, any order); together
             they must carry every object ``Telemetry.decode`` reads.
+        layout: the robot's (default: the default robot's).
     """
 
-    def __init__(self, tpdos: Sequence[PdoSpec]) -> None:
+    def __init__(self, tpdos: Sequence[PdoSpec], layout: RobotLayout | None = None) -> None:
+        layout = layout or default_layout()
         self.cob_ids = tuple(p.cob_id for p in tpdos)
         self._unpack = struct.Struct("<" + "".join(pdo_struct(p).format.lstrip("<") for p in tpdos)).unpack
         pick = itemgetter(*self.cob_ids)
@@ -255,18 +267,17 @@ class TelemetryDecoder:
         for p in tpdos:
             for key in p.keys:
                 slot[(p.device, key)] = len(slot)
-        by_joint = sorted((JOINT_INDEX[(d.name, sub)], d.name, sub)
-                          for d in ACTUATED for sub in range(1, len(d.joints) + 1))
+        by_joint = sorted((j, name, sub) for (name, sub), j in layout.joint_index.items())
         # the scaled values in telemetry order: 4 x 7 axis values (position, velocity, current,
         # voltage by joint), then the IMU's 5
         scaled = [(slot[(name, (index, sub))], scale.factor) for index, scale in AXIS_SCALES.items()
                   for _, name, sub in by_joint]
-        scaled += [(slot[(IMU.name, (index, 0))], IMU_SCALES[index].factor) for index in (
+        scaled += [(slot[(layout.imu.name, (index, 0))], IMU_SCALES[index].factor) for index in (
             Index.PITCH, Index.PITCH_RATE, Index.PITCH_ACCELERATION, Index.ACCELERATION_X,
             Index.ACCELERATION_Z)]
         self._raw = itemgetter(*[i for i, _ in scaled])
         self._factors = tuple(f for _, f in scaled)
-        self._status = itemgetter(*[slot[(d, (Index.STATUS, 0))] for d in STATUS_DEVICES])
+        self._status = itemgetter(*[slot[(layout.board(part).name, (Index.STATUS, 0))] for part in STATUS_PARTS])
 
     def decode(self, cycle: int, frames: Mapping[int, bytes | bytearray], latency_s: float = 0.0) -> Telemetry:
         """The telemetry of one SYNC from the data of each frame by COB-ID (every one present,

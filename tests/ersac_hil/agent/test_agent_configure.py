@@ -10,14 +10,17 @@ import pytest
 from canopen.objectdictionary import ODVariable
 
 from ersac_hil.agent.bus import AgentBus
-from ersac_hil.agent.configure import ARMS, apply_impedance, download_spline
+from ersac_hil.agent.configure import apply_impedance, download_spline
+from ersac_hil.agent.layout import default_layout
 from ersac_hil.agent.policies import ArmImpedance, Spline
 from helpers.timing import PATIENCE_S
-from protocol.can.devices import ARM_LEFT, object_dictionary
+from protocol.can.devices import ARM_LEFT, ARM_RIGHT, object_dictionary
 from protocol.can.busconfig import BusConfig
 from protocol.can.objects import Index, spline_position_index, spline_velocity_index
 
 pytestmark = pytest.mark.timeout(60)
+
+ARMS = (ARM_LEFT, ARM_RIGHT)
 
 
 @pytest.fixture
@@ -39,6 +42,7 @@ def _phys(node, index: int, sub: int) -> float:
 
 def test_impedance_registers_hold_the_si_values(configured):
     bus, nodes = configured
+    assert bus.layout.arms == ARMS == default_layout().arms  # the default description's arm boards
     apply_impedance(bus, ArmImpedance(stiffness=(123.45, 67.89), damping=(1.234, 0.679)))
     for arm in ARMS:
         node = nodes.nodes[arm.name]

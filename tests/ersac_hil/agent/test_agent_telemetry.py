@@ -12,7 +12,8 @@ from canopen.objectdictionary.datatypes import SIGNED_TYPES
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, JOINT_INDEX, Commands, Telemetry, TelemetryDecoder
+from ersac_hil.agent.layout import default_layout
+from ersac_hil.agent.telemetry import ACTUATED, CYCLIC, Commands, Telemetry, TelemetryDecoder
 from protocol.can.devices import ARM_LEFT, ARM_RIGHT, IMU, TORSO, WHEELS, object_dictionary
 from protocol.can.objects import Control, Index
 from protocol.can.pdo import pdo_maps
@@ -68,7 +69,7 @@ def test_telemetry_decodes_with_the_eds_factor(raw):
     t = Telemetry.decode(7, raw)
     for dev in ACTUATED:
         for sub in range(1, len(dev.joints) + 1):
-            j = JOINT_INDEX[(dev.name, sub)]
+            j = default_layout().joint_index[(dev.name, sub)]
             for index, field in AXIS_FIELDS.items():
                 expected = _var(dev, index, sub).decode_phys(raw[dev.name][(index, sub)])
                 assert getattr(t, field)[j] == pytest.approx(expected), (dev.name, field, sub)
