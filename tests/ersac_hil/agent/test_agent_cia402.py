@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import uuid
+from contextlib import contextmanager
 from dataclasses import replace
 
 import pytest
@@ -38,11 +39,13 @@ def holding(robot) -> Commands:
                     arm_right=(q["shoulder_right"], q["elbow_right"]))
 
 
-@pytest.fixture
-def rig():
+@contextmanager
+def drives(description=DESCRIPTION, realtime: bool = False):  # noqa: ANN001
+    """The simulated robot of ``description`` on a fresh virtual bus and the agent's
+    ``Cia402Bus`` on it, its nodes present and patient: (robot, bus)."""
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
-    with SimulatedRobot(config, description=DESCRIPTION) as robot:
-        bus = Cia402Bus(config, DESCRIPTION, timing=PATIENT).open()
+    with SimulatedRobot(config, description=description, realtime=realtime) as robot:
+        bus = Cia402Bus(config, description, timing=replace(PATIENT, realtime=realtime)).open()
         try:
             bus.wait_for_nodes(timeout_s=PATIENCE_S)
             patient_sdo(bus.nodes.values())
@@ -50,6 +53,12 @@ def rig():
             yield robot, bus
         finally:
             bus.close()
+
+
+@pytest.fixture
+def rig():
+    with drives() as (robot, bus):
+        yield robot, bus
 
 
 def test_agent_bus_by_description():
@@ -175,22 +184,14 @@ def test_real_time_episodes_with_the_host_torque_loop(tmp_path):
     path.write_text((SHIPPED_DIR / "ubot5-cia402.toml").read_text().replace('mode = "csp-impedance"', 'mode = "cst"'))
     description = load_description(path)
     assert {a.mode for a in description.axes} == {"cst"}
-    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
-    with SimulatedRobot(config, description=description, realtime=True) as robot:
+    with drives(description, realtime=True) as (robot, bus):
         assert {n.device.name for n in robot.targets_after_answer} == set(JOINTS)  # the seven drives, not the IMU
-        bus = Cia402Bus(config, description, timing=replace(PATIENT, realtime=True)).open()
-        try:
-            bus.wait_for_nodes(timeout_s=PATIENCE_S)
-            patient_sdo(bus.nodes.values())
-            patient_controllers(bus.nodes.values())
-            runner = EpisodeRunner(bus)
-            for task, theta in (("bracing", [0.5]), ("lifting", LIFT)):
-                r = runner.run(runner.plan(EpisodeRequest(f"rt-{task}", task, theta, 1)))
-                assert r.status == "ok", r.detail
-                assert r.telemetry["n_cycles"] >= 200 and "host_compute_p99_ms" in r.telemetry
-            assert_lifted(r)
-        finally:
-            bus.close()
+        runner = EpisodeRunner(bus)
+        for task, theta in (("bracing", [0.5]), ("lifting", LIFT)):
+            r = runner.run(runner.plan(EpisodeRequest(f"rt-{task}", task, theta, 1)))
+            assert r.status == "ok", r.detail
+            assert r.telemetry["n_cycles"] >= 200 and "host_compute_p99_ms" in r.telemetry
+        assert_lifted(r)
     with SimulatedRobot(BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}"), description=description) as lockstep:
         assert lockstep.targets_after_answer == ()  # lock-step: as before, commands before the answer
 
@@ -217,22 +218,14 @@ def test_real_time_lifting_on_the_drives_reaches_the_goal():
     before the first SYNC (torque off until then, 0.1-0.5 s); the bench holds the scenario's
     start until that SYNC. Before, the plant ran on meanwhile: the arms sagged under the bottle
     and its grasp broke before or just after the episode's start (seeds 0-2, both arm modes)."""
-    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
-    with SimulatedRobot(config, description=DESCRIPTION, realtime=True) as robot:
-        bus = Cia402Bus(config, DESCRIPTION, timing=replace(PATIENT, realtime=True)).open()
-        try:
-            bus.wait_for_nodes(timeout_s=PATIENCE_S)
-            patient_sdo(bus.nodes.values())
-            patient_controllers(bus.nodes.values())
-            runner = EpisodeRunner(bus)
-            r = runner.run(runner.plan(EpisodeRequest("rt-lift", "lifting", LIFT, 0)))
-            assert r.status == "ok", r.detail
-            assert robot.stats.held > 0  # the drives' power-up took periods of the clock
-            first = runner.last.samples[0]
-            robot.reset("lifting", 0)  # the scenario's initial state again
-            for side in ("left", "right"):
-                start = [robot.sim.axis(f"{j}_{side}").position for j in ("shoulder", "elbow")]
-                assert first.arm_positions(side) == pytest.approx(start, abs=1e-3), side
-            assert_lifted(r)
-        finally:
-            bus.close()
+    with drives(realtime=True) as (robot, bus):
+        runner = EpisodeRunner(bus)
+        r = runner.run(runner.plan(EpisodeRequest("rt-lift", "lifting", LIFT, 0)))
+        assert r.status == "ok", r.detail
+        assert robot.stats.held > 0  # the drives' power-up took periods of the clock
+        first = runner.last.samples[0]
+        robot.reset("lifting", 0)  # the scenario's initial state again
+        for side in ("left", "right"):
+            start = [robot.sim.axis(f"{j}_{side}").position for j in ("shoulder", "elbow")]
+            assert first.arm_positions(side) == pytest.approx(start, abs=1e-3), side
+        assert_lifted(r)
