@@ -12,8 +12,9 @@ end-to-end tests assert on, ``tests/e2e/test_faults.py``):
 * router-restart: the router SIGKILLed mid-episode and started again on its endpoint;
 * disk-full: no file of the daemon may grow (``RLIMIT_FSIZE`` 0) after two episodes; then a
   daemon with space started again;
-* partition: the daemon's veth down for 10 s mid-episode, then up (the router beside the robot);
-* partition-agent: the robot's veth down for 10 s mid-episode, then up (the router beside the
+* partition: the daemon's veth down for 12 s (longer than Zenoh's 10 s lease) mid-episode,
+  then up (the router beside the robot);
+* partition-agent: the robot's veth down for 12 s mid-episode, then up (the router beside the
   daemon: the agent, running the episode on, is cut off from it);
 * rogue-KIND: a faulty node on the robot's CAN bus while the episode it hit runs, one row per
   kind: rogue-sync (a second SYNC producer), rogue-tpdo-twice (a forged TPDO of the right

@@ -103,7 +103,7 @@ def test_a_partition_between_daemon_and_robot_heals_and_loses_nothing(reference,
 
 
 def test_a_partition_of_the_agent_retries_the_episode_and_takes_no_late_answer(reference, tmp_path, netns):
-    """The agent and its simulator cut off from the router (beside the daemon) for 10 s
+    """The agent and its simulator cut off from the router (beside the daemon) for 12 s
     mid-episode: the agent runs the episode to its end and answers into the cut; the daemon sees
     the agent vanish (``lost``) and, once the agent's session is back (the same Zenoh session,
     its tokens and queryable declared again), asks the episode again under a new request id
