@@ -91,6 +91,8 @@ METHODS: dict[str, tuple[str, ...]] = {
     "default": (),
     "paper": ("--learner", "paper"),
     "guarded": ("--learner", "guarded"),
+    "select": ("--learner", "select"),
+    "trust": ("--learner", "trust"),
     "prior": (),  # the default learner with --prior <the landscape> (prior_flags)
 }
 REPEATS = 3
@@ -98,7 +100,7 @@ REPEATS = 3
 #: extra terms; sized so that mean and std of the landscape are both matched at 0.5-0.75).
 DAMAGE_COST = 90.0
 #: Learner settings screened in-process (``surrogate``): ERSAC keyword arguments (``greedy``:
-#: ``GreedyRule`` fields; ``theta0``: another start), and whether the final policy is the
+#: ``GreedyRule`` fields; ``theta0``: another start; ``sigma``: another sigma), and whether the final policy is the
 #: offline selection at a kappa > 0 (the ``select`` preset's final step). Every run also
 #: reports the offline selection at every kappa (column "selection at every kappa").
 SURROGATE: dict[str, tuple[dict, bool]] = {
@@ -114,7 +116,14 @@ SURROGATE: dict[str, tuple[dict, bool]] = {
     "trust-1": ({"interleave_every": 1, "greedy": {"z": 0.0, "radius": 1.0, "min_move": 0.0, "around": "theta"}}, True),
     "trust-2": ({"interleave_every": 1, "greedy": {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}}, True),
     "trust-1-z1": ({"interleave_every": 1, "greedy": {"z": 1.0, "radius": 1.0, "min_move": 0.0, "around": "theta"}}, True),
+    "trust-3": ({"interleave_every": 1, "greedy": {"z": 0.0, "radius": 3.0, "min_move": 0.0, "around": "theta"}}, True),
     "select-start-0.5": ({"interleave_every": 1, "theta0": 0.5}, True),
+    "trust-2-start-0.5": ({"interleave_every": 1, "theta0": 0.5,
+                           "greedy": {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}}, True),
+    # not the paper's sigma (0.05): is exploration what limits kappa 0?
+    "select-sigma-0.075": ({"interleave_every": 1, "sigma": 0.075}, True),
+    "trust-2-sigma-0.075": ({"interleave_every": 1, "sigma": 0.075,
+                             "greedy": {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}}, True),
 }
 
 
@@ -424,9 +433,10 @@ def surrogate_learner(method: str, kappa: float, seed: int):  # noqa: ANN201
     d = task_defaults("bracing")
     kwargs = dict(SURROGATE[method][0])
     theta0 = (kwargs.pop("theta0"),) if "theta0" in kwargs else d.theta0
+    sigma = (kwargs.pop("sigma"),) if "sigma" in kwargs else d.sigma
     if "greedy" in kwargs:
         kwargs["greedy"] = GreedyRule(**kwargs["greedy"])
-    return ERSAC(theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed, **kwargs)
+    return ERSAC(theta0, sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed, **kwargs)
 
 
 def _surrogate_run(job: tuple[str, float, int, str | None]) -> tuple:

@@ -329,7 +329,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "of F~ when the critic is confident of the gain (default: the --learner's, "
                         "select 1, paper and guarded 0: off; docs/learner.md)")
     p.add_argument("--learner", help="named learner settings: paper (Algorithm 1), guarded (+ move guard), "
-                                      "select (+ interleaved search, final offline selection); default: "
+                                      "select (+ interleaved search, final offline selection), trust (select with a "
+                                      "trust-region step along F~); default: "
                                       "bracing select, lifting guarded (docs/learner.md)")
     p.add_argument("--prior", metavar="PATH",
                    help="simulator prior of a new run: a landscape JSON, a reproduce directory or a store "

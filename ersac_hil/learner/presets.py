@@ -14,6 +14,12 @@
   run's data support. At kappa 0 the last iterate stays (the selection, confined to the
   data, measured worse there: docs/learner.md).
 
+- ``trust``: ``select`` with a trust-region step along F~ in place of the confidence-gated
+  greedy move: after every update theta moves to the argmin of the update's F~ within
+  2 sqrt(d) sigma of the gradient step's theta whenever F~ is lower there (``GreedyRule``
+  z 0, around theta). Measured on the bracing surrogate only (docs/learner.md): nearer the
+  kappa 2 optimum than ``select``, still short of the kappa 0 target; not a default.
+
 Per task default (:data:`TASK_LEARNER`): bracing ``select`` (measured: docs/learner.md),
 lifting ``guarded`` (the interleaved search did worse on lifting, docs/learner.md).
 """
@@ -44,6 +50,7 @@ PRESETS: dict[str, LearnerPreset] = {
     "paper": LearnerPreset("paper", None, 0, False),
     "guarded": LearnerPreset("guarded", MAX_STEP, 0, False),
     "select": LearnerPreset("select", MAX_STEP, 1, True),
+    "trust": LearnerPreset("trust", MAX_STEP, 1, True, GreedyRule(z=0.0, radius=2.0, min_move=0.0, around="theta")),
 }
 #: The default learner of a new run per task.
 TASK_LEARNER: dict[str, str] = {"bracing": "select", "lifting": "guarded"}

@@ -37,6 +37,12 @@ def test_the_learner_preset_sets_the_defaults_and_an_explicit_interleave_wins():
     assert Engine.create("bracing", paper)._learner.get_state()["max_step"] is None
     guarded = {**DaemonConfig(robot="r", learner="guarded", seed=1).learner_settings(), "seed": 1}
     assert Engine.create("bracing", guarded)._learner.get_state()["max_step"] == 3.0
+    # the trust-region learner: its greedy rule reaches the learner and its state
+    trust = {**DaemonConfig(robot="r", learner="trust", seed=1).learner_settings(), "seed": 1}
+    assert trust["interleave_every"] == 1
+    state = Engine.create("bracing", trust)._learner.get_state()
+    assert state["greedy"] == {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}
+    assert Engine.create("bracing", guarded)._learner.get_state()["greedy"]["around"] == "data"
 
 
 @pytest.mark.parametrize("bad", ["Paper", "ersac", ""])
