@@ -65,6 +65,8 @@ def _validate(args: argparse.Namespace) -> None:
         raise UsageError(str(exc)) from None
     try:
         args.loaded = load_description(args.description)
+        from ersac_hil.agent.layout import RobotLayout
+        RobotLayout.of(args.loaded)  # the uBot's joints on its nodes, before anything reads them
         from ersac_hil.agent.limits import SetpointLimits
         args.limits = SetpointLimits.from_description(args.loaded)
         from ersac_hil.agent.robot import RobotParameters

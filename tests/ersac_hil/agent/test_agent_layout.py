@@ -46,6 +46,19 @@ def test_a_description_without_a_joint_the_agent_needs_is_refused_naming_it():
         RobotLayout.of(no_elbow)
 
 
+def test_the_agent_refuses_a_description_without_a_joint_in_one_line(tmp_path, capsys):
+    from ersac_hil.cli import main
+    text = (SHIPPED_DIR / "ubot5.toml").read_text()
+    start = text.index("[axes.elbow_right]")
+    path = tmp_path / "no_elbow.toml"
+    path.write_text(text[:start] + text[text.index("\n[", start) + 1:])
+    assert "elbow_right" not in load_description(path).joints  # a description the loader takes
+    code = main(["agent", "--robot", "r", "--zenoh", "tcp/127.0.0.1:9", "--bus-interface", "virtual",
+                 "--bus-channel", "x", "--description", str(path)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and "elbow_right" in err[0], err  # nothing started
+
+
 def _lift(description) -> tuple:
     config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
     with SimulatedRobot(config, description=description):
