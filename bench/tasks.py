@@ -124,6 +124,7 @@ SURROGATE: dict[str, tuple[dict, bool]] = {
     "select-sigma-0.075": ({"interleave_every": 1, "sigma": 0.075}, True),
     "trust-2-sigma-0.075": ({"interleave_every": 1, "sigma": 0.075,
                              "greedy": {"z": 0.0, "radius": 2.0, "min_move": 0.0, "around": "theta"}}, True),
+    "select-sigma-0.1": ({"interleave_every": 1, "sigma": 0.1}, True),
 }
 
 
