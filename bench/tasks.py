@@ -26,8 +26,10 @@ seeds of ``reproduce lifting``), success as there.
 ``surrogate``: the same learners in-process on a cost drawn from the landscape (a damage
 Bernoulli of the landscape's rate, ``DAMAGE_COST`` each, on a normal base whose spread makes
 up the landscape's std; a fall below theta 0.2): seconds per run instead of a minute, for
-screening settings before measuring them through the stack. Final theta (the last iterate)
-and the final offline selection per method, kappa and seed.
+screening settings before measuring them through the stack. Per method and kappa: the final
+policy as its preset makes it, the last iterate, the offline selection at every kappa and the
+mean of the last 10 policies (within ``TOLERANCE`` of the optimum), the damage rate of the
+final policies, CPU time; ``--out``: every run with its path.
 
 ``peers``: CMA-ES (pycma; each candidate re-evaluated ``REPEATS`` times, scored mean + kappa
 std), mean-variance Bayesian optimisation in the style of RAHBO (GPs on the mean and on the
