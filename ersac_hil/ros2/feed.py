@@ -24,8 +24,8 @@ from pathlib import Path
 
 from ersac_hil.agent.bus import EmcyEvent
 from ersac_hil.agent.telemetry import Telemetry
-from ersac_hil.ros2.options import Ros2Options
-from ersac_hil.ros2.writer import CLOSE_WAIT_S, PART, TERM_WAIT_S, FeedProcess, FeedSettings
+from ersac_hil.ros2.options import PART, Ros2Options
+from ersac_hil.ros2.writer import CLOSE_WAIT_S, TERM_WAIT_S, FeedProcess, FeedSettings
 from ersac_hil.zenoh_session import ZenohOptions
 from protocol.zenoh import EpisodeRequest, EpisodeResult
 

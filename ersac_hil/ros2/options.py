@@ -8,6 +8,9 @@ from dataclasses import dataclass
 from ersac_hil.cli_args import UsageError
 from ersac_hil.ros2 import names
 
+PART = ".part"
+"""Suffix of an MCAP file of ``--record DIR`` still being written (``recorder``; renamed when whole)."""
+
 
 @dataclass(frozen=True)
 class Ros2Options:

@@ -18,7 +18,7 @@ from typing import IO
 from mcap.writer import CompressionType, Writer
 
 from ersac_hil.ros2 import messages as m
-from ersac_hil.ros2.writer import PART
+from ersac_hil.ros2.options import PART
 
 LIBRARY = "ersac-hil"
 COMPRESSION = CompressionType.LZ4

@@ -66,8 +66,6 @@ READY_WAIT_S = 60.0
 """How long the agent waits for the child's ``ready`` (imports and a Zenoh session, on a loaded
 machine)."""
 READY = b"ready\n"
-PART = ".part"
-"""Suffix of an MCAP file still being written (``recorder``)."""
 FAILURES_SAID = 3
 """Failed records the child logs (with their traceback); it goes on with the next."""
 
