@@ -30,7 +30,7 @@ from ersac_hil.cli import main as cli_main
 from ersac_hil.daemon.discovery import NoAgents, find_agents
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
-                                     open_session, zenoh_argv, zenoh_options)
+                                     open_session, session_scope, zenoh_argv, zenoh_options)
 from ersac_hil.stack.faults import Netns, netns_unavailable
 from helpers.processes import group_killed_on_exit, running_with
 from helpers.synthetic_agent import SyntheticAgent
@@ -303,18 +303,23 @@ def test_the_zenoh_flags_given_to_a_child_are_the_options_they_came_from(endpoin
 
 
 def test_find_agents_gives_every_ready_agent_the_key_expression_matches_and_nothing_else():
+    """Each look-up on a session of its own, as ``reach_agents`` opens one."""
     with EmbeddedRouter() as router:
-        sessions = [open_session(router.client_config()) for _ in range(4)]
+        sessions = [open_session(router.client_config()) for _ in range(4)]  # 3 agents, 1 onlooker
         agents = [SyntheticAgent(s, KeySpace(robot)) for s, robot in zip(sessions, ("ubot1", "ubot2", "lab1"))]
+
+        def find(source: str, wait_s: float) -> list[str]:
+            with session_scope(router.client_config()) as session:
+                return find_agents(session, "ersac", source, wait_s, threading.Event())
+
         try:
-            stop = threading.Event()
             wait_until(lambda: len(list(sessions[3].liveliness().get("ersac/*/agent/alive", timeout=5.0))) == 3,
                        what="the three agents' tokens at the router")
-            assert find_agents(sessions[3], "ersac", "ubot$*", 30.0, stop) == ["ubot1", "ubot2"]
-            assert find_agents(sessions[3], "ersac", "lab1", 30.0, stop) == ["lab1"]
+            assert find("ubot$*", 30.0) == ["ubot1", "ubot2"]
+            assert find("lab1", 30.0) == ["lab1"]
             with pytest.raises(NoAgents, match=r"0 answered; agents of other robots under ersac/ did: lab1, ubot1, "
                                                 r"ubot2\)"):
-                find_agents(sessions[3], "ersac", "ubot3", 0.5, stop)
+                find("ubot3", 0.5)
         finally:
             for agent in agents:
                 agent.close()
