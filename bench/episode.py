@@ -42,7 +42,8 @@ Side by side with another checkout (an older main, its own venv or this one)::
 ``--agent-args "--ros2 --record DIR"`` (and ``--busy-poll 0``, as the baseline side) measures
 the ROS 2 bridge and MCAP recording against the same stack without them; repeated, each set
 runs in every round after the baseline (``--agent-args=--ros2 --agent-args "--ros2 --record
-DIR"``: off, bridge, bridge and recording, interleaved).
+DIR"``: off, bridge, bridge and recording, interleaved). Without ``--baseline`` each set runs
+in turn on every process backend of ``--only`` (``--realtime --agent-args=--keep-awake``).
 
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
 agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's
@@ -306,7 +307,7 @@ def main() -> int:
                              "0 in real time, where it gained nothing; 0 = off)")
     parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), action="append",
                         help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"; repeatable: "
-                             "each set is run after the baseline in every round (\"\" for none)")
+                             "each set is run after the baseline in every round (\"\" for none); without --baseline, each set in turn")
     robot = parser.add_mutually_exclusive_group()
     robot.add_argument("--drives", choices=tuple(DRIVES), default="ubot-board",
                        help="drive profile of simulator and agent (default ubot-board; cia402-cst: every "
@@ -341,15 +342,23 @@ def _main(args: argparse.Namespace) -> int:
     only = args.only or ("virtual", "remote", "zenoh", DIRECT)
     robot = {"description": args.robot, "minutes": args.minutes}
     if "virtual" in only:
-        report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
-                                     args.episodes, args.realtime, **robot))
-    if "remote" in only:
-        with LoopbackHub() as hub:
-            report("remote", processes(hub.bus_config, args.episodes, args.realtime, **robot))
-    if "zenoh" in only:
-        report("zenoh", processes(None, args.episodes, args.realtime, busy_poll=args.busy_poll, **robot))
-    if DIRECT in only:
-        report(DIRECT, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll, **robot))
+        if args.agent_args:  # the in-process run has no agent process to take them
+            print("virtual    skipped: --agent-args are flags of an agent process")
+        else:
+            report("virtual", in_process(BusConfig("virtual", f"bench-{uuid.uuid4().hex[:6]}"),
+                                         args.episodes, args.realtime, **robot))
+    for variant in args.agent_args or [()]:  # each set of agent flags in turn
+        label = "".join(f" {a}" for a in variant)
+        if "remote" in only:
+            with LoopbackHub() as hub:
+                report("remote" + label, processes(hub.bus_config, args.episodes, args.realtime,
+                                                   agent_args=variant, **robot))
+        if "zenoh" in only:
+            report("zenoh" + label, processes(None, args.episodes, args.realtime, busy_poll=args.busy_poll,
+                                              agent_args=variant, **robot))
+        if DIRECT in only:
+            report(DIRECT + label, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll,
+                                             agent_args=variant, **robot))
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.only:
         return 0
