@@ -13,9 +13,9 @@ frame woke. In real time both processes hold the kernel's PM QoS request
 ``/dev/cpu_dma_latency`` at 0 us (as ``cyclictest`` does; no deep idle states while they run).
 A virtual machine without a cpuidle driver ignores it; there :class:`KeepAwake` (``agent
 --keep-awake``) keeps every core busy with spinning ``SCHED_IDLE`` children that any other
-thread preempts at once. Measured on this project's 2-core VM, board profile, 200 Hz: SYNC
-latency p99 (median episode) 2.48 / 2.98 ms idle vs 1.47 / 1.62 ms with them, send jitter p99
-2.2 ms vs 0.09 ms (docs/performance.md).
+thread preempts at once. Measured on this project's 2-core VM, board profile, 200 Hz, ten
+minutes idle: SYNC latency p99 (median episode) 2.48 / 2.98 ms without them vs 1.65 / 1.77 ms
+with them, missed periods 0.43 % vs 0.07 % (docs/performance.md).
 
 Both processes also keep Python's cyclic garbage collector off the SYNC path
 (:func:`quiet_gc`), in lock-step and real time alike; the agent switches it off for the
