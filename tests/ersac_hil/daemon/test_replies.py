@@ -70,5 +70,11 @@ def test_an_error_reply_without_an_error_reply_payload_is_malformed(replier):
 
 
 def test_zenohs_own_timeout_is_a_timeout(replier):
-    with pytest.raises(ReplyTimeout):
-        decode_reply(_reply(replier, "hold", timeout=0.3), KappaCommand)
+    # The session's own timer and the router's (which the query's timeout reaches) may both
+    # end the held query: one "Timeout" error or two (seen in CI under load), never an answer.
+    replies = list(replier.get(f"{KEY}?kind=hold", timeout=0.3))
+    assert 1 <= len(replies) <= 2
+    for reply in replies:
+        assert reply.replier_id is None  # Zenoh's own, not the queryable's
+        with pytest.raises(ReplyTimeout):
+            decode_reply(reply, KappaCommand)
