@@ -1,6 +1,10 @@
-"""``reproduce`` and ``bench/bracing_sweep.py`` on simulator/agent pairs already running
-elsewhere behind a router (``--agents KEYEXPR --zenoh-config FILE``), the same code path as the
-pairs they start themselves (``--pairs N``), with the same results.
+"""``reproduce bracing --quick`` end to end through every real process, on pairs it starts
+(``--pairs 2``: interrupted with Ctrl-C, no child left, exit 130; run again, it resumes; the
+results files and figures), and ``reproduce`` and ``bench/bracing_sweep.py`` on simulator/agent
+pairs already running elsewhere behind a router (``--agents KEYEXPR --zenoh-config FILE``), the
+same code path as the pairs they start themselves, with the same results. The quick run on the
+pairs it starts is made once (``quick_local``), and the run on the pairs elsewhere is compared
+with it: the same results.json, interrupted and resumed or not.
 
 The pairs: a TLS router with the roles' access control (``ersac-hil certs init``), two
 simulators and two agents (robots ubot1, ubot2) started as a user starts them on other machines.
@@ -12,7 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import re
+import signal
 import subprocess
 import sys
 import threading
@@ -27,12 +34,13 @@ from hypothesis import strategies as st
 
 from ersac_hil.certs import init_certs
 from ersac_hil.cli import main as cli_main
+from ersac_hil.daemon.store import Store
 from ersac_hil.daemon.discovery import NoAgents, find_agents
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
                                      open_session, session_scope, zenoh_argv, zenoh_options)
 from ersac_hil.stack.faults import Netns, netns_unavailable
-from helpers.processes import group_killed_on_exit, running_with
+from helpers.processes import children, gone, group_killed_on_exit, lines_until, running_with
 from helpers.synthetic_agent import SyntheticAgent
 from helpers.waiting import wait_until
 from protocol.zenoh import KeySpace
@@ -44,6 +52,7 @@ START_S = 120.0
 ROBOTS = ("ubot1", "ubot2")
 NOT_COMPARED = ("timing", "pairs", "agents")
 """``results.json`` ``meta`` fields that say where and how fast, not what came out."""
+PNG = b"\x89PNG\r\n\x1a\n"
 
 
 # --------------------------------------------------------------------------- the pairs elsewhere
@@ -82,19 +91,23 @@ def start_site(work: Path, netns: Netns | None) -> Site:
     certs = init_certs(work / "certs", router=(endpoint,))
     site = Site(work, netns, endpoint, dict(certs.configs))
     try:
-        site.launch("router", cli_argv("router", "--zenoh", endpoint, "--zenoh-config", str(certs.configs["router"]))
-                    ).wait_for(r"Zenoh router: ", START_S)
-        sims = []
+        router = site.launch("router", cli_argv("router", "--zenoh", endpoint, "--zenoh-config",
+                                                str(certs.configs["router"])))
+        sims = []  # started beside the router: their CAN links do not go through it
         for k, robot in enumerate(ROBOTS, 1):
             listen = f"tcp/127.0.0.1:{free_tcp_port()}"  # the robot's own CAN link, on its loopback
             sims.append((robot, listen, site.launch(f"sim-{robot}", cli_argv(
                 "sim", "--bus-interface", "zenoh", "--bus-channel", robot, "--bus-kwargs", f"listen={listen}",
                 "--seed", str(k)))))
-        for robot, listen, sim in sims:
+        router.wait_for(r"Zenoh router: ", START_S)
+        agents = []
+        for robot, listen, sim in sims:  # each agent once its simulator listens; the agents start together
             sim.wait_for(r"^simulator: \d+ nodes", START_S)
-            site.launch(f"agent-{robot}", cli_argv(
+            agents.append(site.launch(f"agent-{robot}", cli_argv(
                 "agent", "--robot", robot, "--bus-interface", "zenoh", "--bus-channel", f"{robot}@{listen}",
-                "--zenoh", endpoint, "--zenoh-config", str(certs.configs["agent"]))).wait_for(r"^agent ready: ", START_S)
+                "--zenoh", endpoint, "--zenoh-config", str(certs.configs["agent"]))))
+        for agent in agents:
+            agent.wait_for(r"^agent ready: ", START_S)
     except BaseException:
         site.close()
         raise
@@ -143,22 +156,82 @@ def _reproduce(*args: str) -> list[str]:
     return [sys.executable, "-m", "ersac_hil.cli", "reproduce", "bracing", "--quick", *args]
 
 
+# --------------------------------------------------------------------------- on pairs it starts
+@dataclass(frozen=True)
+class QuickRun:
+    """``reproduce bracing --quick --pairs 2`` into ``out``: ``first``, the output of the start
+    interrupted by SIGINT once a few episodes were stored (exit ``first_code``); ``second``, the
+    output of the same command run again to its end (exit ``second_code``)."""
+
+    out: Path
+    first: str
+    first_code: int
+    second: str
+    second_code: int
+
+
+@pytest.fixture(scope="module")
+def quick_local(tmp_path_factory) -> QuickRun:
+    """The module's one quick run on pairs it starts: interrupted, then resumed to its end."""
+    out = tmp_path_factory.mktemp("quick-local") / "results"
+    argv = _reproduce("--pairs", "2", "--out", str(out))
+    proc = subprocess.Popen(argv, cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    with group_killed_on_exit(proc):
+        lines = lines_until(proc, r"\] ([3-9]|\d\d)/\d+ episodes", 180)  # a few episodes are stored
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=60)
+    first, first_code = "".join(lines) + rest, proc.returncode
+    code, second, _ = _run(argv, 600) if first_code == 130 else (-1, "(not run again)", 0.0)
+    return QuickRun(out, first, first_code, second, code)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # --quick is 55 episodes: minutes on a loaded 2-core machine
+def test_quick_bracing_is_interrupted_resumed_and_reported(quick_local):
+    out, first, second = quick_local.out, quick_local.first, quick_local.second
+    assert quick_local.first_code == 130 and "interrupted" in first, first
+    assert all(gone(pid) for pid in children(first).values()) and not running_with(out), first
+    stored = int(re.findall(r"\] (\d+)/\d+ episodes", first)[-1])
+
+    assert quick_local.second_code == 0, second
+    match = re.search(r"(\d+) episodes to have \((\d+) already stored\)", second)
+    assert match and int(match.group(2)) >= stored > 0, second
+    assert not running_with(out)
+
+    results = json.loads((out / "results.json").read_text())
+    bracing = results["bracing"]
+    assert len(bracing["final_theta"]["kappa_2"]) == len(bracing["final_theta"]["kappa_0"]) == 2
+    assert math.isfinite(bracing["paired"]["wilcoxon_p_one_sided"])  # two paired differences
+    assert bracing["landscape"]["episodes_per_theta"] == 2 and len(bracing["landscape"]["rows"]) == 2
+    assert {t["target"].split(":")[0] for t in results["targets"]} >= {"landscape", "bracing"}
+    assert "| run seed |" in (out / "results.md").read_text()
+    for name in ("bracing_landscape.png", "bracing_runs.png", "fig1_critic.png", "fig2_critic.png"):
+        assert (out / name).read_bytes()[:8] == PNG, name
+    for kappa, seed in ((k, s) for k in ("2", "0") for s in (1, 2)):
+        with Store(out / "runs" / f"bracing-k{kappa}-s{seed}.db", readonly=True) as store:
+            (run,) = store.runs()
+            assert run.status == "finished" and len(store.ok_episodes(run.run_id)) == 12
+            assert run.settings["eta"] == 0.7 and run.settings["sigma"] == [0.05]  # the paper's
+            moves = [u for u in store.updates(run.run_id) if u.theta_after != u.theta_before]
+            assert moves, "the learner never moved theta: the quick run is inside its warm-up"
+
+
 # --------------------------------------------------------------------------- the same results
 @pytest.mark.slow
-@pytest.mark.timeout(1800)  # two --quick runs of 55 episodes: minutes each on a loaded 2-core machine
-def test_the_fleet_variant_of_reproduce_bracing_quick_gives_the_local_results_json(site, tmp_path):
-    """``reproduce bracing --quick`` on two pairs it starts, and on the two pairs of ``site``
-    behind their router (``--agents 'ubot$*' --zenoh-config daemon.json5``): the same
-    results.json but for where and how fast; both agents ran learning runs; nothing left."""
-    local, fleet = tmp_path / "local", tmp_path / "fleet"
-    code, text, wall_local = _run(_reproduce("--pairs", "2", "--out", str(local)), 900)
-    assert code == 0, text
+@pytest.mark.timeout(1800)  # a --quick run of 55 episodes: minutes on a loaded 2-core machine
+def test_the_fleet_variant_of_reproduce_bracing_quick_gives_the_local_results_json(site, quick_local, tmp_path):
+    """``reproduce bracing --quick`` on the two pairs of ``site`` behind their router
+    (``--agents 'ubot$*' --zenoh-config daemon.json5``) and on two pairs it starts
+    (``quick_local``, interrupted and resumed): the same results.json but for where and how
+    fast; both agents ran learning runs; nothing left."""
+    local, fleet = quick_local.out, tmp_path / "fleet"
+    assert quick_local.second_code == 0, quick_local.second
     code, text, wall_fleet = _run(site.requester(_reproduce(
         "--agents", "ubot$*", "--zenoh-config", str(site.configs["daemon"]), "--out", str(fleet))), 900)
     assert code == 0, text
     assert "on 2 agent(s) behind the router (ubot1, ubot2)" in text, text
-    print(f"reproduce bracing --quick: local 2 pairs {wall_local:.0f} s, fleet 2 agents {wall_fleet:.0f} s, "
-          f"load {os.getloadavg()[0]:.1f}")
+    print(f"reproduce bracing --quick: fleet 2 agents {wall_fleet:.0f} s, load {os.getloadavg()[0]:.1f}")
 
     assert _comparable(fleet) == _comparable(local)
     meta = json.loads((fleet / "results.json").read_text())["meta"]
