@@ -29,12 +29,13 @@ processes (the machine has 2 cores).
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import multiprocessing as mp
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -58,6 +59,24 @@ TOL = 0.05  # "within 5 % of the range" (first time)
 SETTLE = 0.05  # "settled": within 5 % from some episode to the end of the budget
 INTERLEAVE = 1  # ERSAC (interleaved): every update may move to the local argmin of F~ (gated)
 Fn = Callable[[np.ndarray], np.ndarray]
+#: Candidates in a row that a peer may find refused (``Infeasible``) before it gives up.
+MAX_REDRAWS = 100
+
+
+class Infeasible(Exception):
+    """Raised by a ``Problem.sample`` that will not evaluate x at all (no episode spent: e.g. the
+    agent refuses a lifting spline beyond the joint limits): the peer draws another candidate,
+    as the daemon redraws a refused perturbation."""
+
+
+def _first_feasible(candidates: Iterator[np.ndarray], score: Callable[[np.ndarray], object]) -> tuple[np.ndarray, object]:
+    """(candidate, score) of the first of ``candidates`` that ``score`` does not find ``Infeasible``."""
+    for _, c in zip(range(MAX_REDRAWS), candidates):
+        try:
+            return c, score(c)
+        except Infeasible:
+            continue
+    raise RuntimeError(f"{MAX_REDRAWS} candidates in a row were refused")
 
 
 # ----------------------------------------------------------------------------- problems
@@ -266,12 +285,17 @@ def run_cma(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str, 
     while e < p.budget:
         X = es.ask()
         fit = []
-        for x in X:
-            xx = lo + np.clip(np.asarray(x[: p.d]), 0, 1) * (hi - lo)
-            fit.append(_estimate(p, xx, kappa, noise))
-            n = min(REPEATS, p.budget - e)
-            traj[e : e + n] = current
-            e += n
+        for j, x in enumerate(X):
+            if p.budget - e < REPEATS:  # too few episodes left to score a candidate: none is spent
+                traj[e:] = current
+                e = p.budget
+                break
+            X[j], f = _first_feasible(itertools.chain([x], (es.ask(1)[0] for _ in itertools.count())),
+                                      lambda x: _estimate(p, lo + np.clip(np.asarray(x[: p.d]), 0, 1) * (hi - lo),
+                                                          kappa, noise))
+            fit.append(f)
+            traj[e : e + REPEATS] = current
+            e += REPEATS
             if e >= p.budget:
                 break
         if len(fit) < len(X):
@@ -290,7 +314,8 @@ def run_random(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[st
     while e < p.budget:
         n = min(REPEATS, p.budget - e)
         if n == REPEATS:
-            f = _estimate(p, cand, kappa, noise)
+            cand, f = _first_feasible(itertools.chain([cand], (rng.uniform(lo, hi) for _ in itertools.count())),
+                                      lambda x: _estimate(p, x, kappa, noise))
             if f < best:
                 best, best_x = f, cand
         traj[e : e + n] = best_x
@@ -315,6 +340,7 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
     while e < p.budget:
         if len(U) < n_init:
             u = (p.theta0 - lo) / (hi - lo) if not U else rng.uniform(0, 1, p.d)
+            todo = itertools.chain([u], (rng.uniform(0, 1, p.d) for _ in itertools.count()))
         else:
             Ua = np.array(U)
             gm = GP().fit(Ua, np.array(M))
@@ -323,14 +349,13 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
             C = np.vstack([rng.uniform(0, 1, (1000, p.d)), np.clip(best + 0.05 * rng.standard_normal((500, p.d)), 0, 1)])
             pm, ps = gm.predict(C), gs.predict(C)
             acq = pm.f_mean - beta * np.sqrt(pm.f_var) + kappa * np.exp(ps.f_mean - beta * np.sqrt(ps.f_var))
-            u = C[int(np.argmin(acq))]
-        x = lo + u * (hi - lo)
+            todo = iter(C[np.argsort(acq, kind="stable")])  # the next best when one is refused
         n = min(REPEATS, p.budget - e)
         traj[e : e + n] = current
         e += n
         if n < REPEATS:
             break
-        js = p.draw(x, noise, REPEATS)
+        u, js = _first_feasible(todo, lambda u: p.draw(lo + u * (hi - lo), noise, REPEATS))
         U.append(u)
         M.append(float(js.mean()))
         S.append(max(float(js.std(ddof=1)), 1e-9))

@@ -31,15 +31,21 @@ policy as its preset makes it, the last iterate, the offline selection at every 
 mean of the last 10 policies (within ``TOLERANCE`` of the optimum), the damage rate of the
 final policies, CPU time; ``--out``: every run with its path.
 
-``peers``: CMA-ES (pycma; each candidate re-evaluated ``REPEATS`` times, scored mean + kappa
-std), mean-variance Bayesian optimisation in the style of RAHBO (GPs on the mean and on the
-log variance of ``REPEATS`` evaluations per point, lower confidence bound of mean + kappa
-std) and random search with re-evaluation, at equal episode budgets on the same stack (every
-evaluation an independent episode with the scenario seed the daemon would give the learner's
-episode of the same index), against the default learner's runs of the same seeds: F(theta, 2)
-regret of the recommended policy after 15, 30, 45 bracing episodes (against the landscape,
-interpolated). Prints a table and writes ``tasks.png``. (Lifting is not among the peers' tasks
-yet.) ``--with-prior``: also the default learner with ``--prior`` (the landscape as a JSON).
+``peers``: CMA-ES (pycma; each candidate re-evaluated ``REPEATS`` times, bench/learner.py's
+constant, scored mean + kappa std), mean-variance Bayesian optimisation in the style of RAHBO
+(GPs on the mean and on the log variance of ``REPEATS`` evaluations per point, lower
+confidence bound of mean + kappa std) and random search with re-evaluation (bench/learner.py's
+implementations), at equal episode budgets on the same stack (every evaluation an independent
+episode with the scenario seed the daemon would give the learner's episode of the same index),
+against the default learner's runs of the same seeds, at the task's kappa and budget
+(``PEER_TASKS``). ``--task bracing``: F(theta, 2) regret of the recommended policy after 15,
+30, 45 episodes (against the landscape, interpolated); writes ``tasks.png``. ``--task
+lifting``: success of the policy recommended after 30 episodes over the test trials of
+``learning --task lifting`` (the same scenario seeds per run seed, ``ersac_hil.reproduce.
+lifting.success``); writes ``tasks-lifting.png``. Jobs go seed by seed, so an interrupted
+bench leaves a prefix of the seeds for every method; ``--report-only`` prints the tables of
+what is stored (complete seeds per method) without running an episode. ``--with-prior``
+(bracing): also the default learner with ``--prior`` (the landscape as a JSON).
 
 ``gaps``: the simulator prior on surrogate robots that differ from the simulator (``GAPS``:
 the landscape's damage rate moved in theta, the undamaged cost scaled; the simulator is the
@@ -55,6 +61,7 @@ the landscape's episodes locate the argmin, and the expected path of the paper's
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -73,7 +80,7 @@ import numpy as np  # noqa: E402
 
 from ersac_hil.reproduce import plan  # noqa: E402
 from ersac_hil.reproduce.lifting import success  # noqa: E402
-from ersac_hil.reproduce.runner import Pool, RunSpec, physics_stack  # noqa: E402
+from ersac_hil.reproduce.runner import Pool, RunSpec, finished, physics_stack  # noqa: E402
 from ersac_hil.reproduce.trials import TrialSpec, TrialStore  # noqa: E402
 from ersac_hil.reproduce.views import history  # noqa: E402
 
@@ -97,7 +104,6 @@ METHODS: dict[str, tuple[str, ...]] = {
     "trust": ("--learner", "trust"),
     "prior": (),  # the default learner with --prior <the landscape> (prior_flags)
 }
-REPEATS = 3
 #: Cost of a damaged episode in the surrogate (the task's damage weight 10 x the broken arm's
 #: extra terms; sized so that mean and std of the landscape are both matched at 0.5-0.75).
 DAMAGE_COST = 90.0
@@ -200,13 +206,9 @@ def learning(args: argparse.Namespace) -> dict:
     trials = TrialStore(out / "trials.db")
     pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
     t0, load0 = time.monotonic(), os.getloadavg()[0]
+    tests = plan.FULL.test_trials if args.task == "lifting" else 0
     try:
-        pool.run(pool.learning_jobs(specs, out))
-        if args.task == "lifting":
-            sizes = plan.FULL
-            tests = [s for spec in specs for s in plan.test_trials(tuple(history(spec.db(out)).final_policy),
-                                                                   spec.seed, sizes)]
-            pool.run(pool.trial_jobs(tests, "lifting test"))
+        pool.run([j for spec in specs for j in learner_jobs(pool, spec, out, tests)])
     finally:
         pool.close()
         stack.close()
@@ -266,10 +268,7 @@ def _bracing_table(method: str, kappa: float, rows: list, land: Landscape, dbs: 
 
 
 def _lifting_table(method: str, rows: list, trials: TrialStore) -> dict:
-    rates = []
-    for s, h in rows:
-        got = trials.get(plan.test_trials(tuple(h.final_policy), s, plan.FULL))
-        rates.append(float(np.mean([success(t) for t in got.values()])) if got else float("nan"))
+    rates = [success_rate(trials, h.final_policy, s) for s, h in rows]
     print(f"\nlifting, {method}: success of the policy after {rows[0][1].n} episodes (10 test trials each): "
           f"pooled {100 * np.nanmean(rates):.1f} %; per seed " + ", ".join(f"{s}: {100 * r:.0f}" for (s, _), r in zip(rows, rates)))
     return {"success_per_seed": rates, "success_pooled": float(np.nanmean(rates))}
@@ -542,6 +541,46 @@ def kappa0_bench(args: argparse.Namespace) -> None:
 
 PEERS = ("CMA-ES", "MV-BO", "random")
 CHECKPOINTS = (15, 30, 45)
+#: The peers' tasks: the episode budget and the kappa of every run, the default learner's as
+#: ``learning`` runs them (bracing kappa 2, 45 episodes; lifting risk-neutral, 30 episodes).
+PEER_TASKS: dict[str, tuple[int, float]] = {"bracing": (45, 2.0), "lifting": (30, 0.0)}
+#: ``peers --methods``: the default learner (daemon runs) and the peers.
+PEER_METHODS = ("default", *PEERS)
+LABELS = {"default": "ERSAC (default)", "prior": "ERSAC (default) + simulator prior"}
+
+
+def lifting_tests(theta: Sequence[float], seed: int, n: int = plan.FULL.test_trials) -> list[TrialSpec]:
+    """The ``n`` lifting test trials of a policy of run seed ``seed``: the scenario seeds of
+    ``reproduce lifting``'s (``plan.test_trials``), the same for every method of that seed."""
+    return plan.test_trials(tuple(float(v) for v in theta), seed, dataclasses.replace(plan.FULL, test_trials=n))
+
+
+def success_rate(trials: TrialStore, theta: Sequence[float], seed: int, n: int = plan.FULL.test_trials) -> float:
+    """Lifting success of ``theta`` over its ``n`` test trials (NaN until all are stored)."""
+    got = trials.get(lifting_tests(theta, seed, n))
+    return float(np.mean([success(t) for t in got.values()])) if len(got) == n else float("nan")
+
+
+def _run_missing(worker, trials: TrialStore, specs: Sequence[TrialSpec], stop: threading.Event) -> None:  # noqa: ANN001
+    from ersac_hil.reproduce.trials import run_trial
+
+    for t in trials.missing(specs):
+        run_trial(worker.link, trials, t, stop)
+
+
+def learner_jobs(pool: Pool, spec: RunSpec, out: Path, tests: int) -> list[tuple[str, Callable]]:
+    """The jobs of one daemon run (none when it is finished) followed, with ``tests`` > 0, by the
+    lifting test trials of its final policy on the same worker (one job: the tests need the run)."""
+    jobs = pool.learning_jobs([spec], out)
+    if not tests:
+        return jobs
+    learn = jobs[0][1] if jobs else None
+
+    def job(worker) -> None:  # noqa: ANN001
+        if learn is not None:
+            learn(worker)
+        _run_missing(worker, pool.trials, lifting_tests(history(spec.db(out)).final_policy, spec.seed, tests), pool.stop)
+    return [(f"learning {spec.name} + tests", job)]
 
 
 def _peer_problem(task: str, budget: int, evaluate: Callable[[np.ndarray], float]):  # noqa: ANN202
@@ -559,99 +598,198 @@ def _peer_problem(task: str, budget: int, evaluate: Callable[[np.ndarray], float
                                 sample=lambda x, _noise, k: np.array([evaluate(x) for _ in range(k or 1)]))
 
 
+def peer_path(out: Path, method: str, task: str, kappa: float, seed: int) -> Path:
+    return out / "peers" / f"{method}-{task}-k{kappa:g}-s{seed}.json"
+
+
 def peer_job(method: str, task: str, kappa: float, seed: int, budget: int, trials: TrialStore, out: Path,
-             stop: threading.Event) -> Callable:
+             stop: threading.Event, tests: int = 0) -> Callable:
     """One peer run on a worker: every evaluation a trial with the scenario seed the daemon
-    gives learner episode idx of run seed ``seed``; writes ``peers/<name>.json`` (the
-    recommended policy after every episode)."""
+    gives learner episode idx of run seed ``seed`` (a trial already stored, e.g. another peer's
+    at the same start, is not run again); writes ``peers/<name>.json`` (the recommended policy
+    after every episode); with ``tests`` > 0 then runs the lifting test trials of the policy
+    recommended at the end of the budget."""
     from ersac_hil.daemon.runs import scenario_seed
     from ersac_hil.reproduce.trials import run_trial
 
-    path = out / "peers" / f"{method}-{task}-k{kappa:g}-s{seed}.json"
+    path = peer_path(out, method, task, kappa, seed)
 
     def job(worker) -> None:  # noqa: ANN001
-        if path.exists():
-            return
-        idx = [0]
+        if not path.exists():
+            idx, refused = [0], [0]
 
-        def evaluate(x: np.ndarray) -> float:
-            t = TrialSpec(task, tuple(float(v) for v in x), scenario_seed(seed, idx[0]))
-            idx[0] += 1
-            run_trial(worker.link, trials, t, stop)
-            got = trials.get([t]).get(t)
-            if got is None or not got.ok:
-                raise RuntimeError(f"trial {t.key} did not finish")
-            return got.cost()
+            def evaluate(x: np.ndarray) -> float:
+                # rounded: the same policy reached through another peer's scaling is the same trial
+                t = TrialSpec(task, tuple(round(float(v), 12) for v in x), scenario_seed(seed, idx[0]))
+                got = trials.get([t]).get(t)
+                if got is None:
+                    run_trial(worker.link, trials, t, stop)
+                    got = trials.get([t]).get(t)
+                if got is not None and got.status == "refused":  # no episode: the peer draws another
+                    refused[0] += 1
+                    raise peers.Infeasible(got.detail)
+                if got is None or not got.ok:
+                    raise RuntimeError(f"trial {t.key} did not finish")
+                idx[0] += 1
+                return got.cost()
 
-        peers, problem = _peer_problem(task, budget, evaluate)
-        run = {"CMA-ES": peers.run_cma, "MV-BO": peers.run_mvbo, "random": peers.run_random}[method]
-        traj, _ = run(problem, kappa, seed)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({"method": method, "task": task, "kappa": kappa, "seed": seed,
-                                    "recommended": np.asarray(traj).tolist()}))
+            peers, problem = _peer_problem(task, budget, evaluate)
+            run = {"CMA-ES": peers.run_cma, "MV-BO": peers.run_mvbo, "random": peers.run_random}[method]
+            traj, _ = run(problem, kappa, seed)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps({"method": method, "task": task, "kappa": kappa, "seed": seed,
+                                        "episodes": idx[0], "refused": refused[0], "recommended": np.asarray(traj).tolist()}))
+        if tests:
+            _run_missing(worker, trials, lifting_tests(json.loads(path.read_text())["recommended"][-1], seed, tests), stop)
     return job
+
+
+def _checkpoints(budget: int) -> tuple[int, ...]:
+    return (*(c for c in CHECKPOINTS if c < budget), budget)
+
+
+def _peer_result(method: str, task: str, kappa: float, seed: int, budget: int, out: Path, trials: TrialStore,
+                 land: Landscape, tests: int) -> list[float] | None:
+    """One (method, seed) of ``peers``, ``None`` while it is not complete: bracing, the F(theta,
+    2) regret of the recommended policy at every checkpoint; lifting, [success of the policy
+    recommended after the budget over its test trials]."""
+    cps = _checkpoints(budget)
+    if method in LABELS:
+        spec = run_spec(method, task, kappa, seed, budget)
+        if not finished(spec, out):
+            return None
+        db = spec.db(out)
+        if task == "lifting":
+            rate = success_rate(trials, history(db).final_policy, seed, tests)
+            return None if math.isnan(rate) else [rate]
+        h = history(db)
+        rec = [float(h.policy_after(n)[0]) for n in cps[:-1]] + [float(final_policy(db)[0])]
+    else:
+        path = peer_path(out, method, task, kappa, seed)
+        if not path.exists():
+            return None
+        traj = json.loads(path.read_text())["recommended"]
+        if task == "lifting":
+            rate = success_rate(trials, traj[-1], seed, tests)
+            return None if math.isnan(rate) else [rate]
+        rec = [traj[n - 1][0] for n in cps]
+    opt = land.F(land.optimum(kappa), kappa)
+    return [land.F(t, kappa) - opt for t in rec]
 
 
 def peers_bench(args: argparse.Namespace) -> None:
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     stop = threading.Event()
-    seeds, kappa, budget = parse_seeds(args.seeds), 2.0, 45
-    stack = _stack(out, stop, args.pairs)
+    task, seeds = args.task, parse_seeds(args.seeds)
+    budget, kappa = PEER_TASKS[task]
+    budget = args.episodes or budget
+    methods = [*args.methods.split(","), *(("prior",) if args.with_prior else ())]
+    tests = args.test_trials if task == "lifting" else 0
+    flags = {m: prior_flags(out, args.landscape) if m == "prior" else () for m in methods}
     trials = TrialStore(out / "trials.db")
-    pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
-    jobs = [(f"{m} s{s}", peer_job(m, "bracing", kappa, s, budget, trials, out, stop)) for m in PEERS for s in seeds]
-    learners = ("default", "prior") if args.with_prior else ("default",)
-    flags = {"default": (), "prior": prior_flags(out, args.landscape) if args.with_prior else ()}
-    specs = [run_spec(m, "bracing", kappa, s, budget, flags[m]) for m in learners for s in seeds]
-    t0, load0 = time.monotonic(), os.getloadavg()[0]
-    try:
-        pool.run(pool.learning_jobs(specs, out) + jobs)
-    finally:
-        pool.close()
-        stack.close()
-    wall = time.monotonic() - t0
+    wall, load = float("nan"), (os.getloadavg()[0], float("nan"))
+    if not args.report_only:
+        stack = _stack(out, stop, args.pairs)
+        pool = Pool(stack, trials, stop, lambda line: print(line, flush=True))
+        jobs = []
+        for s in seeds:  # seed by seed: an interrupted bench leaves a prefix of the seeds of every method
+            for m in methods:
+                if m in LABELS:
+                    jobs += learner_jobs(pool, run_spec(m, task, kappa, s, budget, flags[m]), out, tests)
+                else:
+                    jobs.append((f"{m} s{s}", peer_job(m, task, kappa, s, budget, trials, out, stop, tests)))
+        t0 = time.monotonic()
+        try:
+            pool.run(jobs)
+        finally:
+            pool.close()
+            stack.close()
+        wall, load = time.monotonic() - t0, (load[0], os.getloadavg()[0])
     land = Landscape.load(args.landscape)
-    opt = land.F(land.optimum(kappa), kappa)
     rows: dict[str, list[list[float]]] = {}
-    for s in seeds:
-        for m in learners:
-            db = run_spec(m, "bracing", kappa, s, budget).db(out)
-            h = history(db)
-            rec = [float(h.policy_after(n)[0]) for n in CHECKPOINTS[:-1]] + [float(final_policy(db)[0])]
-            rows.setdefault("ERSAC (default)" if m == "default" else "ERSAC (default) + simulator prior", []).append(
-                [land.F(t, kappa) - opt for t in rec])
-        for m in PEERS:
-            traj = json.loads((out / "peers" / f"{m}-bracing-k{kappa:g}-s{s}.json").read_text())["recommended"]
-            rows.setdefault(m, []).append([land.F(traj[n - 1][0], kappa) - opt for n in CHECKPOINTS])
-    print(f"\nbracing, kappa 2, seeds {args.seeds}: F(theta, 2) regret of the recommended policy (landscape; "
-          f"median [IQR] over seeds); wall time {wall / 60:.1f} min, load {load0:.1f} -> {os.getloadavg()[0]:.1f}")
-    print("| method | " + " | ".join(f"after {n}" for n in CHECKPOINTS) + " |")
-    print("|---" * (len(CHECKPOINTS) + 1) + "|")
-    for m, r in rows.items():
-        a = np.array(r)
-        print(f"| {m} | " + " | ".join(f"{np.median(a[:, i]):.1f} [{np.percentile(a[:, i], 25):.1f}-{np.percentile(a[:, i], 75):.1f}]"
-                                       for i in range(len(CHECKPOINTS))) + " |")
-    _plot(rows, out / "tasks.png", args.seeds)
-    (out / "peers-bracing.json").write_text(json.dumps({"seeds": seeds, "wall_s": wall, "regret": rows}, indent=1))
+    done: dict[str, list[int]] = {}
+    for m in methods:
+        label = LABELS.get(m, m)
+        for s in seeds:
+            r = _peer_result(m, task, kappa, s, budget, out, trials, land, tests)
+            if r is not None:
+                rows.setdefault(label, []).append(r)
+                done.setdefault(label, []).append(s)
+    when = ("from the stored results" if args.report_only else
+            f"wall time {wall / 60:.1f} min, load average {load[0]:.1f} -> {load[1]:.1f}")
+    if task == "bracing":
+        cps = _checkpoints(budget)
+        print(f"\nbracing, kappa {kappa:g}, seeds {args.seeds}: F(theta, {kappa:g}) regret of the recommended policy "
+              f"(landscape; median [IQR] over seeds); {when}")
+        print("| method | seeds | " + " | ".join(f"after {n}" for n in cps) + " |")
+        print("|---" * (len(cps) + 2) + "|")
+        for m, r in rows.items():
+            a = np.array(r)
+            print(f"| {m} | {len(r)} | " + " | ".join(
+                f"{np.median(a[:, i]):.1f} [{np.percentile(a[:, i], 25):.1f}-{np.percentile(a[:, i], 75):.1f}]"
+                for i in range(len(cps))) + " |")
+        if rows:
+            _plot(rows, cps, out / "tasks.png", args.seeds)
+    else:
+        print(f"\nlifting, kappa {kappa:g}, seeds {args.seeds}: success of the policy recommended after {budget} "
+              f"episodes over {tests} test trials per seed (the default learner's test scenario seeds); {when}")
+        print("| method | seeds | success after " + str(budget) + " (test trials) | seeds at 100 % | lowest seed |")
+        print("|---|---|---|---|---|")
+        for m, r in rows.items():
+            a = np.array(r)[:, 0]
+            print(f"| {m} | {len(a)} | {100 * a.mean():.1f} % ({int(round(a.sum() * tests))}/{a.size * tests}) | "
+                  f"{int(np.sum(a == 1.0))}/{a.size} | {100 * a.min():.0f} % |")
+        for m, r in rows.items():
+            print(f"{m}: per seed " + ", ".join(f"{s}: {100 * v[0]:.0f}" for s, v in zip(done[m], r)))
+        if rows:
+            _plot_success(rows, out / "tasks-lifting.png", args.seeds, budget)
+    missing = {LABELS.get(m, m): len(seeds) - len(done.get(LABELS.get(m, m), [])) for m in methods}
+    if any(missing.values()):
+        print("not complete: " + ", ".join(f"{m} {n} of {len(seeds)} seeds" for m, n in missing.items() if n))
+    (out / f"peers-{task}.json").write_text(json.dumps(
+        {"task": task, "kappa": kappa, "episodes": budget, "test_trials": tests, "seeds": done, "wall_s": wall,
+         "load": load, ("regret" if task == "bracing" else "success"): rows}, indent=1))
 
 
-def _plot(rows: dict[str, list[list[float]]], path: Path, seeds: str) -> None:
+def _plot(rows: dict[str, list[list[float]]], cps: Sequence[int], path: Path, seeds: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for i, (m, r) in enumerate(rows.items()):
         a = np.array(r)
-        x = np.array(CHECKPOINTS) + (i - 1.5) * 0.8
+        x = np.array(cps) + (i - 1.5) * 0.8
         ax.errorbar(x, np.median(a, axis=0), yerr=[np.median(a, axis=0) - np.percentile(a, 25, axis=0),
                                                    np.percentile(a, 75, axis=0) - np.median(a, axis=0)],
                     marker="o", capsize=3, label=m)
     ax.set_xlabel("bracing episodes")
     ax.set_ylabel("F(theta, 2) regret of the recommended policy")
-    ax.set_xticks(CHECKPOINTS)
+    ax.set_xticks(cps)
     ax.set_title(f"bracing, kappa 2, run seeds {seeds}: median and IQR")
     ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"wrote {path}")
+
+
+def _plot_success(rows: dict[str, list[list[float]]], path: Path, seeds: str, budget: int) -> None:
+    """Lifting: the pooled success per method (bar) and every seed's (dots)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    jitter = np.random.default_rng(0)
+    for i, (m, r) in enumerate(rows.items()):
+        a = 100 * np.array(r)[:, 0]
+        ax.bar(i, a.mean(), width=0.6, alpha=0.5)
+        ax.plot(i + jitter.uniform(-0.2, 0.2, a.size), a, "k.", alpha=0.6)
+        ax.text(i, 102, f"{a.mean():.0f} % ({a.size} seeds)", ha="center", fontsize=8)
+    ax.set_xticks(range(len(rows)), list(rows), fontsize=8)
+    ax.set_ylim(0, 110)
+    ax.set_ylabel(f"lifting success after {budget} episodes (%)")
+    ax.set_title(f"lifting, run seeds {seeds}: pooled (bar) and per seed (dots)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -673,9 +811,16 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--methods", default=",".join(SURROGATE))
     sp.add_argument("--processes", type=int, default=2)
     sp.add_argument("--out", default=None, help="JSON of every run")
-    pp = sub.add_parser("peers", help="CMA-ES, MV-BO, random search against the default learner (bracing)")
+    pp = sub.add_parser("peers", help="CMA-ES, MV-BO, random search against the default learner")
+    pp.add_argument("--task", choices=list(PEER_TASKS), default="bracing")
     pp.add_argument("--seeds", default="1-20")
-    pp.add_argument("--with-prior", action="store_true", help="also the default learner with --prior (the landscape)")
+    pp.add_argument("--methods", default=",".join(PEER_METHODS), help=f"of {', '.join(PEER_METHODS)}")
+    pp.add_argument("--episodes", type=int, default=None, help="the budget (default: bracing 45, lifting 30)")
+    pp.add_argument("--test-trials", type=int, default=plan.FULL.test_trials, help="lifting test trials per policy")
+    pp.add_argument("--with-prior", action="store_true",
+                    help="also the default learner with --prior (the bracing landscape; bracing only)")
+    pp.add_argument("--report-only", action="store_true",
+                    help="no episodes: the tables of what the output directory holds (complete seeds per method)")
     gp = sub.add_parser("gaps", help="the simulator prior on surrogate robots that differ from the simulator")
     gp.add_argument("--seeds", default="0-9")
     gp.add_argument("--gaps", default=",".join(GAPS))
@@ -690,10 +835,14 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--pairs", type=int, default=1)
     lp.add_argument("--physics", default=None, help="the simulators' --physics FILE (docs/physics.md)")
     args = ap.parse_args(argv)
-    known = SURROGATE if args.what == "surrogate" else METHODS
+    known = {"surrogate": SURROGATE, "peers": PEER_METHODS}.get(args.what, METHODS)
     unknown = [m for m in getattr(args, "methods", "").split(",") if m and m not in known]
     if unknown:
         ap.error(f"unknown method {unknown[0]!r}; known: {', '.join(known)}")
+    if args.what == "peers" and args.with_prior and args.task != "bracing":
+        ap.error("--with-prior: bracing only (the prior is the bracing landscape)")
+    if args.what == "peers" and (args.test_trials < 1 or (args.episodes is not None and args.episodes < 1)):
+        ap.error("--episodes and --test-trials must be >= 1")
     bad_gap = [g for g in getattr(args, "gaps", "").split(",") if g and g not in GAPS]
     if bad_gap:
         ap.error(f"unknown gap {bad_gap[0]!r}; known: {', '.join(GAPS)}")
