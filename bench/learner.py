@@ -69,14 +69,16 @@ class Infeasible(Exception):
     as the daemon redraws a refused perturbation."""
 
 
-def _first_feasible(candidates: Iterator[np.ndarray], score: Callable[[np.ndarray], object]) -> tuple[np.ndarray, object]:
-    """(candidate, score) of the first of ``candidates`` that ``score`` does not find ``Infeasible``."""
-    for _, c in zip(range(MAX_REDRAWS), candidates):
+def _first_feasible(candidates: Iterator[np.ndarray], score: Callable[[np.ndarray], object],
+                    limit: int = MAX_REDRAWS) -> tuple[np.ndarray, object]:
+    """(candidate, score) of the first of ``candidates`` (at most ``limit``) that ``score``
+    does not find ``Infeasible``."""
+    for _, c in zip(range(limit), candidates):
         try:
             return c, score(c)
         except Infeasible:
             continue
-    raise RuntimeError(f"{MAX_REDRAWS} candidates in a row were refused")
+    raise RuntimeError(f"{limit} candidates in a row were refused")
 
 
 # ----------------------------------------------------------------------------- problems
@@ -340,7 +342,7 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
     while e < p.budget:
         if len(U) < n_init:
             u = (p.theta0 - lo) / (hi - lo) if not U else rng.uniform(0, 1, p.d)
-            todo = itertools.chain([u], (rng.uniform(0, 1, p.d) for _ in itertools.count()))
+            todo, limit = itertools.chain([u], (rng.uniform(0, 1, p.d) for _ in itertools.count())), MAX_REDRAWS
         else:
             Ua = np.array(U)
             gm = GP().fit(Ua, np.array(M))
@@ -349,13 +351,14 @@ def run_mvbo(p: Problem, kappa: float, seed: int) -> tuple[np.ndarray, dict[str,
             C = np.vstack([rng.uniform(0, 1, (1000, p.d)), np.clip(best + 0.05 * rng.standard_normal((500, p.d)), 0, 1)])
             pm, ps = gm.predict(C), gs.predict(C)
             acq = pm.f_mean - beta * np.sqrt(pm.f_var) + kappa * np.exp(ps.f_mean - beta * np.sqrt(ps.f_var))
-            todo = iter(C[np.argsort(acq, kind="stable")])  # the next best when one is refused
+            # the next best when one is refused, through every point of C
+            todo, limit = iter(C[np.argsort(acq, kind="stable")]), len(C)
         n = min(REPEATS, p.budget - e)
         traj[e : e + n] = current
         e += n
         if n < REPEATS:
             break
-        u, js = _first_feasible(todo, lambda u: p.draw(lo + u * (hi - lo), noise, REPEATS))
+        u, js = _first_feasible(todo, lambda u: p.draw(lo + u * (hi - lo), noise, REPEATS), limit)
         U.append(u)
         M.append(float(js.mean()))
         S.append(max(float(js.std(ddof=1)), 1e-9))
