@@ -65,7 +65,7 @@ class Sizes:
     fig1_after: tuple[int, ...] = (5, 15, 35, 45)
     last_window: int = 15
     lifting_seeds: int = 5
-    lifting_episodes: int = 30
+    lifting_episodes: int = task_defaults("lifting").episodes
     lifting_stage: int = 15
     test_trials: int = 10
     context_episodes: int = 5
