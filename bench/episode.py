@@ -25,6 +25,8 @@ episode's, an upper bound of the p99 over all cycles). Backends:
   the episode queries use, simulator and agent as separate processes;
 * ``direct``: CAN over Zenoh on a direct link (``ersac_hil.canbus.direct``, what ``ersac-hil
   demo`` uses): the simulator's bus listens on a free loopback port, the agent's connects to it;
+* ``ipc``: CAN over a Unix socket (``ersac_hil.canbus.ipc``): the simulator's bus listens on a
+  socket in a temporary directory, the agent's connects to it;
 * ``socketcan`` on vcan0, same processes as ``remote``, where the kernel has SocketCAN.
 
 On ``zenoh`` and ``direct`` both buses busy-poll in lock-step as ``ersac-hil demo``'s do
@@ -161,6 +163,8 @@ def _ready(proc: subprocess.Popen, marker: str) -> str:
 
 DIRECT = "direct"
 """``processes``' config for CAN over Zenoh on a direct link (the simulator listens)."""
+IPC = "ipc"
+"""``processes``' config for CAN over a Unix socket (the simulator listens)."""
 
 
 def processes(config: BusConfig | str | None, n: int, realtime: bool,
@@ -168,7 +172,8 @@ def processes(config: BusConfig | str | None, n: int, realtime: bool,
               busy_poll: float = 0.0, agent_args: tuple[str, ...] = (), description: str | None = None,
               minutes: float | None = None) -> dict[str, list[EpisodeResult]]:
     """Simulator and agent as processes on ``config`` (``None``: CAN over Zenoh on the router;
-    ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's), run by ``python``
+    ``DIRECT``: CAN over Zenoh, the agent's bus connected to the simulator's; ``IPC``: the same
+    on a Unix socket), run by ``python``
     from ``checkout`` (default: this one); ``busy_poll``: both CAN-over-Zenoh buses' (s, 0: off);
     ``description``: both processes' robot description (default theirs, the boards')."""
     extra = ["--realtime"] if realtime else []
@@ -177,9 +182,13 @@ def processes(config: BusConfig | str | None, n: int, realtime: bool,
     polling = [f"busy_poll={busy_poll}"] if busy_poll else []
     procs = []
     try:
-        with EmbeddedRouter() as router:
+        with EmbeddedRouter() as router, tempfile.TemporaryDirectory(prefix="bench-ipc-") as sockets:
             sim_bus = None
-            if config == DIRECT:
+            if config == IPC:
+                path = str(Path(sockets) / "can.sock")
+                sim_bus = ["--bus-interface", "ipc", "--bus-channel", path, "--bus-kwargs", "listen=true"]
+                config = BusConfig("ipc", path)
+            elif config == DIRECT:
                 name, listen = f"bench-{uuid.uuid4().hex[:6]}", f"tcp/127.0.0.1:{free_tcp_port()}"
                 sim_bus = ["--bus-interface", "zenoh", "--bus-channel", name, "--bus-kwargs", f"listen={listen}",
                            *polling]
@@ -251,7 +260,7 @@ def _on(bus: str, run):  # noqa: ANN001, ANN202
     if bus == "remote":
         with LoopbackHub() as hub:
             return run(hub.bus_config)
-    return run(DIRECT if bus == DIRECT else None)
+    return run(bus if bus in (DIRECT, IPC) else None)
 
 
 def compare(args: argparse.Namespace) -> int:
@@ -295,11 +304,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3, help="episodes per task and backend")
     parser.add_argument("--realtime", action="store_true", help="real-time mode (agent and simulator)")
-    parser.add_argument("--only", action="append", choices=("virtual", "remote", "zenoh", DIRECT),
+    parser.add_argument("--only", action="append", choices=("virtual", "remote", "zenoh", DIRECT, IPC),
                         help="only these backends (repeatable; default all)")
     parser.add_argument("--baseline", type=Path, help="another checkout to run side by side")
     parser.add_argument("--baseline-python", help="its Python (default its .venv, else this one)")
-    parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT), default="zenoh")
+    parser.add_argument("--baseline-bus", choices=("zenoh", "remote", DIRECT, IPC), default="zenoh")
     parser.add_argument("--rounds", type=int, default=2, help="rounds of baseline then this checkout")
     parser.add_argument("--busy-poll", dest="busy_poll", type=float, metavar="S",
                         help="CAN over Zenoh: this checkout's buses poll S seconds after each sample "
@@ -339,7 +348,7 @@ def _main(args: argparse.Namespace) -> int:
           f"median wall, worst p99 over the episodes; OPENBLAS_NUM_THREADS=1)")
     if args.baseline is not None:
         return compare(args)
-    only = args.only or ("virtual", "remote", "zenoh", DIRECT)
+    only = args.only or ("virtual", "remote", "zenoh", DIRECT, IPC)
     robot = {"description": args.robot, "minutes": args.minutes}
     if "virtual" in only:
         if args.agent_args:  # the in-process run has no agent process to take them
@@ -359,6 +368,8 @@ def _main(args: argparse.Namespace) -> int:
         if DIRECT in only:
             report(DIRECT + label, processes(DIRECT, args.episodes, args.realtime, busy_poll=args.busy_poll,
                                              agent_args=variant, **robot))
+        if IPC in only:
+            report(IPC + label, processes(IPC, args.episodes, args.realtime, agent_args=variant, **robot))
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.only:
         return 0

@@ -8,7 +8,9 @@ role), every participant with the ``agent`` role's config (the ``simulator`` rol
 same CAN rule). ``zenoh-direct`` is a direct link (``ersac_hil.canbus.direct``): every
 participant, with the ``agent`` role's config, connects to a bus listening with the
 ``simulator`` role's config (TLS, client certificates, the router's access control) instead
-of a router, and busy-polls (``busy_poll``) as ``ersac-hil demo``'s buses do.
+of a router, and busy-polls (``busy_poll``) as ``ersac-hil demo``'s buses do. ``ipc`` is CAN
+over a Unix socket (``ersac_hil.canbus.ipc``): every participant connects to a bus the fixture
+keeps listening on a fresh socket path.
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ from ersac_hil.canbus import LoopbackHub, vcan_status  # noqa: E402
 from ersac_hil.zenoh_session import EmbeddedRouter  # noqa: E402
 from protocol.can.busconfig import BusConfig  # noqa: E402
 
-BACKENDS = ("virtual", "remote", "zenoh", "zenoh-tls", "zenoh-direct", "socketcan")
+BACKENDS = ("virtual", "remote", "zenoh", "zenoh-tls", "zenoh-direct", "ipc", "socketcan")
 
 
 @pytest.fixture(scope="session")
@@ -86,6 +88,20 @@ def can_backend(request):
         certs = request.getfixturevalue("secure_can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}@{endpoint}",
                         options=(("zenoh_config", str(certs.configs["agent"])), ("busy_poll", "0.002")))
+    elif kind == "ipc":
+        import shutil
+        import tempfile
+
+        import can
+        folder = tempfile.mkdtemp(prefix="can-")  # short: a socket path has at most 107 bytes
+        path = os.path.join(folder, "bus.sock")
+        listener = can.Bus(interface="ipc", channel=path, listen=True)
+        listener.push_notifier([])  # it only relays: nothing queued for a recv() nobody calls
+        try:
+            yield BusConfig("ipc", path)
+        finally:
+            listener.shutdown()
+            shutil.rmtree(folder, ignore_errors=True)
     elif kind == "zenoh-tls":
         certs = request.getfixturevalue("secure_can_router")
         yield BusConfig("zenoh", f"test-{uuid.uuid4().hex[:8]}",

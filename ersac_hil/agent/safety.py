@@ -45,7 +45,7 @@ from protocol.can.objects import Control
 
 PACINGS = ("auto", "realtime", "lockstep")
 """What the agent was asked for: ``auto`` is the policy of the module docstring."""
-SIMULATION_INTERFACES = ("virtual", "remote", "zenoh")
+SIMULATION_INTERFACES = ("virtual", "remote", "zenoh", "ipc")
 """python-can interfaces that may carry a simulated robot (besides ``socketcan`` on ``vcan*``)."""
 
 
@@ -57,7 +57,7 @@ def physical_bus(bus: BusConfig) -> str | None:
         return f"socketcan {bus.channel} is a physical CAN bus (only vcan* can be a simulated bench)"
     if bus.interface in SIMULATION_INTERFACES:
         return None
-    return f"interface {bus.interface} is CAN hardware (a simulator runs on virtual, remote, zenoh or vcan*)"
+    return f"interface {bus.interface} is CAN hardware (a simulator runs on virtual, remote, zenoh, ipc or vcan*)"
 
 
 class LockstepRefused(RequestRefused):
