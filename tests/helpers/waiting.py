@@ -2,12 +2,14 @@
 processes (never a bare sleep)."""
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
+
+from ersac_hil.stack.waiting import NotInTime
+from ersac_hil.stack.waiting import wait_until as stack_wait_until
 
 T = TypeVar("T")
 
@@ -19,15 +21,12 @@ statement about speed (speed is measured in bench/)."""
 def wait_until(predicate: Callable[[], T], timeout_s: float = DEFAULT_TIMEOUT_S, poll_s: float = 0.01,
                what: str = "condition") -> T:
     """Call ``predicate`` until it returns something truthy and return that; fail the test
-    (naming ``what``) if ``timeout_s`` passes first."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"{what} not met within {timeout_s} s")
-        time.sleep(poll_s)
+    (naming ``what``) if ``timeout_s`` passes first (``ersac_hil.stack.waiting.wait_until``, the
+    one implementation, with the test's failure instead of its ``NotInTime``)."""
+    try:
+        return stack_wait_until(predicate, timeout_s, what, poll_s)
+    except NotInTime as exc:
+        pytest.fail(str(exc))
 
 
 def wait_for_match(entity: Any, timeout_s: float = 5.0, poll_s: float = 0.002) -> bool:
@@ -37,13 +36,10 @@ def wait_for_match(entity: Any, timeout_s: float = 5.0, poll_s: float = 0.002) -
     Returns:
         whether a match appeared within ``timeout_s``.
     """
-    deadline = time.monotonic() + timeout_s
-    while True:
-        if entity.matching_status.matching:
-            return True
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(poll_s)
+    try:
+        return stack_wait_until(lambda: entity.matching_status.matching, timeout_s, "a match", poll_s)
+    except NotInTime:
+        return False
 
 
 def wait_for_store(db: Path, predicate: Callable[..., object], timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
