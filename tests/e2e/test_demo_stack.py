@@ -25,26 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl",
        "PYTHONUNBUFFERED": "1"}
 
-
-def _missing_commands() -> str | None:
-    """Why the stack cannot run here (a command of the stack does not exist yet), or None."""
-    for argv, what in (([sys.executable, "-m", "ersac_hil.cli", "agent", "--help"], "ersac-hil agent"),
-                       ([sys.executable, "-m", "firmware_sim", "--help"], "python -m firmware_sim")):
-        done = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, env=ENV, timeout=60)
-        if done.returncode != 0:
-            return f"{what} is not available yet: {(done.stderr or done.stdout).strip()[-200:]}"
-    return None
-
-
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _stack_available():
-    """Skip (with the reason) only while a command of the stack does not exist."""
-    reason = _missing_commands()
-    if reason:
-        pytest.skip(reason)
 
 
 def _demo(out: Path, *args: str) -> subprocess.Popen:

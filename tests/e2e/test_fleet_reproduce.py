@@ -39,16 +39,14 @@ from ersac_hil.daemon.discovery import NoAgents, find_agents
 from ersac_hil.stack import Child, child_env, cli_argv
 from ersac_hil.zenoh_session import (EmbeddedRouter, ZenohOptions, add_zenoh_arguments, free_tcp_port,
                                      open_session, session_scope, zenoh_argv, zenoh_options)
-from ersac_hil.stack.faults import Netns, netns_unavailable
+from ersac_hil.stack.faults import START_S, Netns, netns_unavailable
 from helpers.processes import children, gone, group_killed_on_exit, lines_until, running_with
 from helpers.synthetic_agent import SyntheticAgent
 from helpers.waiting import wait_until
-from protocol.zenoh import KeySpace
+from protocol.zenoh import DEFAULT_PREFIX, KeySpace
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**child_env(), "PYTHONUNBUFFERED": "1"}
-START_S = 120.0
-"""How long a child may take to come up (MuJoCo starts slowly on a loaded machine)."""
 ROBOTS = ("ubot1", "ubot2")
 NOT_COMPARED = ("timing", "pairs", "agents")
 """``results.json`` ``meta`` fields that say where and how fast, not what came out."""
@@ -383,10 +381,11 @@ def test_find_agents_gives_every_ready_agent_the_key_expression_matches_and_noth
 
         def find(source: str, wait_s: float) -> list[str]:
             with session_scope(router.client_config()) as session:
-                return find_agents(session, "ersac", source, wait_s, threading.Event())
+                return find_agents(session, DEFAULT_PREFIX, source, wait_s, threading.Event())
 
         try:
-            wait_until(lambda: len(list(sessions[3].liveliness().get("ersac/*/agent/alive", timeout=5.0))) == 3,
+            tokens = f"{DEFAULT_PREFIX}/*/agent/alive"
+            wait_until(lambda: len(list(sessions[3].liveliness().get(tokens, timeout=5.0))) == 3,
                        what="the three agents' tokens at the router")
             assert find("ubot$*", 30.0) == ["ubot1", "ubot2"]
             assert find("lab1", 30.0) == ["lab1"]
