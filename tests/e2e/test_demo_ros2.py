@@ -66,7 +66,10 @@ def test_demo_ros2_records_every_episode_and_the_run_exports(tmp_path):
     assert {k.split("/")[2] for k in per_key} >= {"joint_states", "imu", "episode"}
     for key, atts in per_key.items():
         seqs, stamps = [a[0] for a in atts], [a[1] for a in atts]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), key
+        # strictly increasing, as rmw_zenoh reads them; a KEEP_LAST publisher (Zenoh's congestion
+        # control "drop", as rmw_zenoh's) may lose a sample when the machine is overloaded: a gap
+        # (CI at load ~30 saw 1, 3, 4, 5, 6 on the episode topic), which subscribers count as lost
+        assert seqs[0] >= 1 and all(b > a for a, b in zip(seqs, seqs[1:])), key
         assert all(b > a for a, b in zip(stamps, stamps[1:])), key
     parsed = [names.parse_token(t) for t in tokens]
     assert {t.kind for t in parsed} == {"NN", "MP"}
