@@ -360,40 +360,58 @@ def targets(summary: dict, variants: list[str]) -> None:
               f"coverage in range {cov_ok}/{len(cells)}, NLPD <= GP {nl_ok}/{len(cells)}")
 
 
+# (metric, panel title, format, target test or None, colour map for metrics without a target)
+_PANELS = (
+    ("slope_med", "slope ratio of r~ (median; 1 = right slope)", "{:.2f}", lambda v: 0.8 <= v <= 1.25),
+    ("coverage", "coverage of J~ +/- 2 r~ (%)", "{:.0f}", lambda v: 0.90 <= v <= 0.98),
+    ("dnlpd", "NLPD(VHGP) - NLPD(GP) (median)", "{:+.2f}", lambda v: v <= 0),
+    ("log_ratio", "|log r~/r| (median; 0 = exact)", "{:.2f}", None),
+)
+
+
 def plot(summary: dict, variants: list[str], sizes: tuple[int, ...], path: str) -> None:
+    """One heat map a metric (rows: problems, columns: n; the value printed in each cell): green
+    where a cell meets the target the bench checks (at n >= 30), red where it misses it, pale
+    below n = 30 (no target there); |log r~/r| shaded by size (no target)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
 
-    fig, axes = plt.subplots(len(variants), 4, figsize=(17, 3.4 * len(variants)), squeeze=False)
+    problems = [pn for pn in PROBLEMS if any((v, pn, n) in summary for v in variants for n in sizes)]
+    fig, axes = plt.subplots(len(variants), len(_PANELS), squeeze=False,
+                             figsize=(4.2 * len(_PANELS), 0.42 * len(problems) * len(variants) + 1.4))
+    verdict_map = ListedColormap(["#f4c7c3", "#b7e1b0", "#fbe3e1", "#e2f3de", "#eeeeee"])
     for row, v in enumerate(variants):
-        for pn in PROBLEMS:
-            ns = [n for n in sizes if (v, pn, n) in summary]
-            s = [summary[(v, pn, n)] for n in ns]
-            axes[row, 0].plot(ns, [x["log_ratio"] for x in s], "o-", label=pn)
-            med = np.array([x["slope_med"] for x in s])
-            axes[row, 1].plot(ns, med, "o-", label=pn)
-            axes[row, 1].fill_between(ns, [x["slope_q1"] for x in s], [x["slope_q3"] for x in s], alpha=0.12)
-            axes[row, 2].plot(ns, [100 * x["coverage"] for x in s], "o-", label=pn)
-            axes[row, 3].plot(ns, [x["dnlpd"] for x in s], "o-", label=pn)
-        axes[row, 0].set_ylabel(f"{v}\n|log r~/r| (median)")
-        axes[row, 1].axhspan(0.8, 1.25, color="g", alpha=0.1)
-        axes[row, 1].set_ylim(-0.5, 2.5)
-        axes[row, 1].set_ylabel("slope ratio (median, IQR)")
-        axes[row, 2].axhspan(90, 98, color="g", alpha=0.1)
-        axes[row, 2].set_ylabel("coverage of J~ +/- 2 r~ (%)")
-        axes[row, 3].axhline(0, color="k", lw=0.8)
-        axes[row, 3].set_ylabel("NLPD(VHGP) - NLPD(GP) (median)")
-        for ax in axes[row]:
-            ax.set_xlabel("points in the fit (n)")
-            ax.grid(alpha=0.3)
-    for row in range(len(variants)):  # a few fits far worse than the GP would set a linear scale
-        axes[row, 3].set_yscale("symlog", linthresh=10.0)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="center right", fontsize=8, frameon=False,
-               title="problem")
-    fig.tight_layout(rect=(0, 0, 0.9, 1))  # the legend beside the panels, off the data
-    fig.savefig(path, dpi=80)
+        for col, (key, title, fmt, ok) in enumerate(_PANELS):
+            ax = axes[row, col]
+            values = np.full((len(problems), len(sizes)), np.nan)
+            for i, pn in enumerate(problems):
+                for j, n in enumerate(sizes):
+                    if (v, pn, n) in summary:
+                        values[i, j] = summary[(v, pn, n)][key]
+            if ok is None:
+                ax.imshow(np.abs(values), cmap="Blues", vmin=0, vmax=1.5, aspect="auto")
+            else:
+                # 0 miss / 1 met (n >= 30); 2 miss / 3 met below 30 (pale); 4 no value
+                code = np.full(values.shape, 4.0)
+                for (i, j), val in np.ndenumerate(values):
+                    if np.isfinite(val):
+                        code[i, j] = float(ok(val)) + (0 if sizes[j] >= 30 else 2)
+                ax.imshow(code, cmap=verdict_map, vmin=0, vmax=4, aspect="auto")
+            for (i, j), val in np.ndenumerate(values):
+                text = "-" if not np.isfinite(val) else fmt.format(val * 100 if key == "coverage" else val)
+                ax.text(j, i, text, ha="center", va="center", fontsize=8)
+            ax.set_xticks(range(len(sizes)), [str(n) for n in sizes])
+            ax.set_yticks(range(len(problems)), problems if col == 0 else [""] * len(problems))
+            ax.set_xlabel("points in the critic's fit (n)")
+            ax.set_title(title if len(variants) == 1 else f"{v}: {title}", fontsize=9)
+            ax.axvline(next((j for j, n in enumerate(sizes) if n >= 30), len(sizes)) - 0.5, color="k", lw=0.8)
+    fig.suptitle("VHGP critic calibration at ERSAC's sample sizes: green meets the bench's target "
+                 "(n >= 30, right of the line), red misses it, pale: below 30 points", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
     print(f"\nplot written to {path}")
 
 
