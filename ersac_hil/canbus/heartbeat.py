@@ -3,17 +3,23 @@
 python-can-remote 0.3's periodic tasks cannot change their data (its
 ``CyclicSendTask.modify_data`` calls ``super(self)`` and raises TypeError, so canopen's
 heartbeat producer would keep reporting the old NMT state over a remote bus), so the agent
-sends its heartbeat from a thread, reporting the state the caller gives.
+sends its heartbeat from a thread, reporting the state the caller gives. A send that fails
+(the bus down for a while) is said once and the beat goes on.
 """
 from __future__ import annotations
 
+import logging
 import threading
 
+import can
 import canopen
 
 from protocol.can import cobid
 from protocol.can.devices import AGENT_NODE_ID, HEARTBEAT_PERIOD_MS
 from protocol.can.nmt import OPERATIONAL
+
+
+log = logging.getLogger(__name__)
 
 
 class HeartbeatProducer:
@@ -47,8 +53,16 @@ class HeartbeatProducer:
         return self._cob, bytes([self.state])
 
     def _run(self) -> None:
+        failing = False
         while True:
-            self._network.send_message(self._cob, [self.state])
+            try:
+                self._network.send_message(self._cob, [self.state])
+            except (can.CanError, OSError) as exc:  # the bus is down for now: keep beating
+                if not failing:
+                    log.warning("agent heartbeat not sent: %s", exc)
+                failing = True
+            else:
+                failing = False
             if self._stop.wait(self._period):
                 return
 

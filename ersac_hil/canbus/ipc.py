@@ -23,9 +23,10 @@ Who may use the bus is who may open the path: the listener creates its socket wi
 (its own user only) and refuses a path where another bus still listens; a socket file left by
 a listener that died is replaced. It never leaves the computer, so it is for simulated robots
 only; a robot's bus is ``socketcan``. A bus does not hear its own frames unless
-``receive_own_messages=True`` (then on the sending thread, after the send). When the listener
-goes away, the connected buses' sends fail (``can.CanOperationError``) and a push notifier
-records the loss as its ``exception`` (canopen's ``Network.check`` raises it).
+``receive_own_messages=True`` (then on the sending thread, after the send). While the listener
+is away (a simulator restarting), the connected buses' sends fail (``can.CanOperationError``,
+what a CAN controller reports when no node acknowledges) and they keep connecting again: the
+frames flow once a listener is back on the path.
 """
 from __future__ import annotations
 
@@ -51,6 +52,7 @@ MAX_MESSAGE = 65536
 """Bytes of one message (one burst); a larger send is refused."""
 _PATH_MAX = 107  # sun_path holds 108 bytes with the terminating NUL
 _CONNECT_RETRY_S = 0.02
+_RECONNECT_S = 0.05
 _log = logging.getLogger(__name__)
 
 
@@ -172,7 +174,8 @@ class IpcBus(MessageSender, PushingBus, FramePusher):
 
     # -- receiving ------------------------------------------------------------------------------
     def _receive(self) -> None:
-        """A connecting bus's receive thread: every message of the listener, in order."""
+        """A connecting bus's receive thread: every message of the listener, in order; when
+        the listener goes away, connects again until it is back (or the bus shuts down)."""
         sock = self._peers[0]
         while True:
             try:
@@ -181,11 +184,37 @@ class IpcBus(MessageSender, PushingBus, FramePusher):
                 payload, reason = b"", exc.strerror or str(exc)
             else:
                 reason = "it closed the connection"
-            if not payload:
-                if not self._closed:
-                    self._lost(f"the listening bus went away ({reason})")
+            if payload:
+                self._delivered(payload)
+                continue
+            if self._closed:
                 return
-            self._delivered(payload)
+            self._gone = f"the listening bus went away ({reason})"
+            _log.warning("%s: %s; connecting again", self.channel_info, self._gone)
+            sock = self._reconnect()
+            if sock is None:
+                return
+
+    def _reconnect(self) -> socket.socket | None:
+        """The connection to a listener on the path again (``None``: shut down meanwhile)."""
+        while not self._closed:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            try:
+                sock.connect(self.path)
+            except OSError:
+                sock.close()
+                time.sleep(_RECONNECT_S)
+                continue
+            with self._send_lock:
+                if self._closed:
+                    break
+                old, self._peers = self._peers, [sock]
+                self._gone = None
+            for dead in old:
+                dead.close()
+            _log.warning("%s: connected again", self.channel_info)
+            return sock
+        return None
 
     def _relay(self) -> None:
         """The listening bus's receive thread: accepts buses, and relays each message of one to
@@ -234,14 +263,8 @@ class IpcBus(MessageSender, PushingBus, FramePusher):
         except Exception:  # noqa: BLE001 - as a receive thread does: log, go on
             _log.exception("%s: receiving a message failed", self.channel_info)
 
-    def _lost(self, reason: str) -> None:
-        """The listener is gone: sends fail from now on, a push notifier records it."""
-        self._gone = reason
-        push = self._push
-        if push is not None:
-            push.fail(can.CanOperationError(f"{self.channel_info}: {reason}"))
-
     _gone: str | None = None
+    """Why sends fail while a connecting bus has lost its listener (``None``: connected)."""
 
     # -- sending --------------------------------------------------------------------------------
     def _put(self, payload: bytes) -> None:
