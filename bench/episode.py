@@ -46,6 +46,8 @@ the ROS 2 bridge and MCAP recording against the same stack without them; repeate
 runs in every round after the baseline (``--agent-args=--ros2 --agent-args "--ros2 --record
 DIR"``: off, bridge, bridge and recording, interleaved). Without ``--baseline`` each set runs
 in turn on every process backend of ``--only`` (``--realtime --agent-args=--keep-awake``).
+``--baseline-agent-args "..."`` gives the baseline's agents flags of their own (a real-time
+comparison with ``--keep-awake`` on both sides).
 
 runs the process backends of ``--only`` round by round, the other checkout's simulator and
 agent first (never busy-polling: ``--baseline .`` compares polling with not), then this one's
@@ -275,7 +277,7 @@ def compare(args: argparse.Namespace) -> int:
     same = True
     for rnd in range(1, args.rounds + 1):
         base = _on(args.baseline_bus, lambda c: processes(c, args.episodes, args.realtime, other, python,
-                                                          description=robot))
+                                                          agent_args=args.baseline_agent_args, description=robot))
         print(f"round {rnd}  load average {os.getloadavg()[0]:.2f}")
         report(f"base-{args.baseline_bus}", base)
         for backend in args.only or ("zenoh",):
@@ -317,6 +319,9 @@ def main() -> int:
     parser.add_argument("--agent-args", dest="agent_args", type=lambda t: tuple(t.split()), action="append",
                         help="further flags of this checkout's agents, e.g. \"--ros2 --record DIR\"; repeatable: "
                              "each set is run after the baseline in every round (\"\" for none); without --baseline, each set in turn")
+    parser.add_argument("--baseline-agent-args", dest="baseline_agent_args", type=lambda t: tuple(t.split()),
+                        default=(), help="further flags of the baseline's agents (e.g. --keep-awake, for a real-time "
+                                         "comparison with --agent-args=--keep-awake)")
     robot = parser.add_mutually_exclusive_group()
     robot.add_argument("--drives", choices=tuple(DRIVES), default="ubot-board",
                        help="drive profile of simulator and agent (default ubot-board; cia402-cst: every "

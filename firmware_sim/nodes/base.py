@@ -173,10 +173,15 @@ class SlaveNode(canopen.LocalNode):
     a simulator that steps physics between those two calls passes ``False`` and calls
     ``apply_commands()`` and ``due_tpdos()`` from its own SYNC handler (packing the due
     TPDOs of all its nodes from one sample).
+
+    Its heartbeat, event-driven TPDOs and watch on the agent's heartbeat run on a thread of its
+    own every ``WATCHDOG_TICK_S``; with ``watchdog=False`` the owner calls :meth:`tick` as
+    often instead (a real-time simulator from its physics thread, so no thread per node wakes
+    when a SYNC is due).
     """
 
     def __init__(self, device: Device, app: NodeApplication | None = None, *, own_sync: bool = True,
-                 lockstep_period_s: float | None = None) -> None:
+                 lockstep_period_s: float | None = None, watchdog: bool = True) -> None:
         super().__init__(device.node_id, object_dictionary(device))
         self.device = device
         self.app = app or StaticApplication()
@@ -189,6 +194,8 @@ class SlaveNode(canopen.LocalNode):
         self._inbox = RpdoInbox(())
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
+        self._own_watchdog = watchdog
+        self._next_hb = 0.0
         self._agent_last_hb: float | None = None
         self._hb_lost = False
         self._lockstep_period_s = lockstep_period_s
@@ -231,8 +238,10 @@ class SlaveNode(canopen.LocalNode):
             network.subscribe(cobid.SYNC, self._on_sync)
         self._boot()
         self._stop.clear()
-        self._watchdog = threading.Thread(target=self._watch, name=f"node-{self.id:#x}", daemon=True)
-        self._watchdog.start()
+        self._next_hb = time.monotonic()
+        if self._own_watchdog:
+            self._watchdog = threading.Thread(target=self._watch, name=f"node-{self.id:#x}", daemon=True)
+            self._watchdog.start()
 
     def close(self) -> None:
         self._stop.set()
@@ -483,24 +492,27 @@ class SlaveNode(canopen.LocalNode):
         return (word & 0xFFFF) / 1000.0
 
     def _watch(self) -> None:
-        next_hb = time.monotonic()
         while not self._stop.wait(WATCHDOG_TICK_S):
-            now = time.monotonic()
-            period = int(self.value(Index.PRODUCER_HEARTBEAT, 0)) / 1000.0
-            if period > 0 and now >= next_hb:
-                try:
-                    self.network.send_message(cobid.heartbeat(self.id), [self.nmt._state])
-                except Exception as exc:  # bus gone: the owner is shutting us down
-                    log.debug("node %#x heartbeat not sent: %s", self.id, exc)
-                next_hb = now + period
-            if self._events:
-                self.send_event_tpdos()
-            timeout = self.consumer_timeout()
-            last = self._agent_last_hb
-            if timeout and not self._hb_lost and self._agent_silent(now, timeout):
-                self._hb_lost = True
-                log.warning("node %#x: agent heartbeat lost (%.0f ms), safe state", self.id,
-                            1000 * (now - last))
-                self.app.on_heartbeat_lost()
-                self.emergency(EmcyCode.HEARTBEAT_LOST)
+            self.tick(time.monotonic())
+
+    def tick(self, now: float) -> None:
+        """One watchdog tick at ``now`` (``time.monotonic``): the heartbeat when due, the
+        event-driven TPDOs, the agent's heartbeat checked (see the class doc)."""
+        period = int(self.value(Index.PRODUCER_HEARTBEAT, 0)) / 1000.0
+        if period > 0 and now >= self._next_hb:
+            try:
+                self.network.send_message(cobid.heartbeat(self.id), [self.nmt._state])
+            except Exception as exc:  # bus gone: the owner is shutting us down
+                log.debug("node %#x heartbeat not sent: %s", self.id, exc)
+            self._next_hb = now + period
+        if self._events:
+            self.send_event_tpdos()
+        timeout = self.consumer_timeout()
+        last = self._agent_last_hb
+        if timeout and not self._hb_lost and self._agent_silent(now, timeout):
+            self._hb_lost = True
+            log.warning("node %#x: agent heartbeat lost (%.0f ms), safe state", self.id,
+                        1000 * (now - last))
+            self.app.on_heartbeat_lost()
+            self.emergency(EmcyCode.HEARTBEAT_LOST)
 

@@ -6,7 +6,8 @@ exactly one control period of physics, sends the failure EMCYs of that period, t
 node samples and sends its synchronous TPDOs. Real-time: SYNC applies commands, samples and
 answers from the present state at once (as a drive samples at SYNC; a CiA 402 drive whose
 SYNC commands are only targets takes them right after its answer), and a physics thread
-advances one period right after each answer; it steps on the wall clock (overruns counted)
+advances one period right after each answer (and then runs the nodes' watchdog ticks:
+heartbeats, the agent's heartbeat watched); it steps on the wall clock (overruns counted)
 whenever no SYNC has come for half a period past its due time (the agent between episodes),
 except from a scenario's start (``reset``) to the first SYNC after it: the test bench holds the
 robot in the scenario's initial state until the episode begins, as lock-step does (no plant time
@@ -30,7 +31,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 
-from firmware_sim.nodes.base import NodeApplication, SlaveNode
+from firmware_sim.nodes.base import WATCHDOG_TICK_S, NodeApplication, SlaveNode
 from firmware_sim.nodes.cia402 import DriveApp, DriveCounts, drive_scaling
 from firmware_sim.nodes.devices import APPS, AxisCounts, telemetry_row
 from firmware_sim.nodes.sampler import TpdoSampler
@@ -112,7 +113,7 @@ class SimulatedRobot:
         for d in devices:
             app = (DriveApp(self, d, scalings[d.joints[0]], self._drives) if d in drives
                    else APPS[d.name](self, d))
-            self.nodes[d.name] = SlaveNode(d, app, own_sync=False,
+            self.nodes[d.name] = SlaveNode(d, app, own_sync=False, watchdog=not realtime,
                                            lockstep_period_s=None if realtime else control_period)
         for node in self.nodes.values():
             node.connect(self.network)
@@ -204,9 +205,14 @@ class SimulatedRobot:
 
     def _run_realtime(self) -> None:
         """The physics thread (see the module doc and ``realtime_schedule``); after each step
-        the telemetry counts of the new state, for the next SYNC's answer."""
+        the telemetry counts of the new state, for the next SYNC's answer, and every
+        ``WATCHDOG_TICK_S`` the nodes' watchdog ticks (heartbeats, event TPDOs, the agent's
+        heartbeat watched): in the quiet part of the period, where one thread per node waking on
+        its own timer would also wake when a SYNC is due and contend for the interpreter with
+        its answer."""
         period, clock, answered = self.sim.control_period, time.monotonic, self._answered
-        last = next_t = clock()
+        nodes = tuple(self.nodes.values())
+        last = next_t = next_tick = clock()
         while True:
             synced = answered.wait(max(0.0, next_t - clock()))
             if self._stop.is_set():
@@ -230,6 +236,14 @@ class SimulatedRobot:
             if not synced and next_t < clock():
                 self.stats.overruns += 1
                 next_t = clock()
+            now = clock()
+            if now >= next_tick:
+                next_tick = now + WATCHDOG_TICK_S
+                for node in nodes:
+                    try:
+                        node.tick(now)
+                    except Exception:  # noqa: BLE001 - as the node's own thread would end: the physics goes on
+                        log.exception("node %#x: watchdog tick failed", node.id)
 
     # -- test bench --------------------------------------------------------------------------
     def reset(self, scenario: str, seed: int) -> None:

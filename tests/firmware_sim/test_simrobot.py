@@ -229,3 +229,31 @@ def test_realtime_physics_takes_no_second_step_for_a_sync_right_after_a_clock_st
     assert steps[:3] == pytest.approx([0.0, 0.005, 0.010])
     assert steps[3:] == pytest.approx([0.0151, 0.0201, 0.0251, 0.0301])  # the 10.1 ms SYNC: no step
     assert len(steps) == 7  # one step a period all along
+
+
+def test_realtime_watchdogs_tick_on_the_physics_thread_heartbeats_out_and_the_agents_watched():
+    """Real time: no thread per node; the physics thread's ticks send every node's heartbeat
+    and catch the agent's silence (EMCY 0x8130 within the consumer time) as the nodes' own
+    threads do in lock-step."""
+    import threading
+    import uuid
+
+    from protocol.can.busconfig import BusConfig, open_network
+    from protocol.can.devices import AGENT_NODE_ID
+    from protocol.can.objects import EmcyCode
+
+    config = BusConfig("virtual", f"test-{uuid.uuid4().hex[:8]}")
+    with SimulatedRobot(config, realtime=True) as robot:
+        assert not [t for t in threading.enumerate() if t.name.startswith("node-")]
+        net = open_network(config)
+        try:
+            beats = FrameLog(net, [cobid.heartbeat(d.node_id) for d in DEVICES])
+            beats.wait_for(lambda _: min(beats.counts().values()) >= 2, what="two heartbeats of every node")
+            emcy = FrameLog(net, [cobid.emcy(WHEELS.node_id)])
+            net.send_message(cobid.heartbeat(AGENT_NODE_ID), b"\x05")  # heard once, then silent
+            code = int(EmcyCode.HEARTBEAT_LOST).to_bytes(2, "little")
+            emcy.wait_for(lambda frames: any(data[:2] == code for _, data in frames),
+                          what="the wheels' EMCY 0x8130 after the agent fell silent")
+            assert robot.stats.cycles > 0  # the physics thread stepped all along
+        finally:
+            net.disconnect()
