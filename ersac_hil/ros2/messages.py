@@ -120,17 +120,96 @@ def torque_per_amp(description: RobotDescription | None = None) -> np.ndarray:
 
 
 def joint_state(tel: Telemetry, stamp_ns: int, per_amp: np.ndarray) -> Any:
-    return _t(JOINT_STATE)(header(stamp_ns, "base_link"), list(JOINTS),
-                           np.array(tel.position, dtype=np.float64), np.array(tel.velocity, dtype=np.float64),
-                           np.array(tel.current, dtype=np.float64) * per_amp)
+    return _joint_state(stamp_ns, tel.position, tel.velocity, np.array(tel.current, dtype=np.float64) * per_amp)
+
+
+def _joint_state(stamp_ns: int, position: Sequence[float], velocity: Sequence[float],
+                 effort: Sequence[float]) -> Any:
+    return _t(JOINT_STATE)(header(stamp_ns, "base_link"), list(JOINTS), np.array(position, dtype=np.float64),
+                           np.array(velocity, dtype=np.float64), np.array(effort, dtype=np.float64))
 
 
 def imu(tel: Telemetry, stamp_ns: int) -> Any:
-    v3, zeros = _t("geometry_msgs/msg/Vector3"), np.zeros(9, dtype=np.float64)
     half = tel.pitch / 2.0
-    q = _t("geometry_msgs/msg/Quaternion")(0.0, math.sin(half), 0.0, math.cos(half))
-    return _t(IMU)(header(stamp_ns, "imu_link"), q, zeros, v3(0.0, tel.pitch_rate, 0.0), zeros,
-                   v3(tel.acc_x, 0.0, tel.acc_z), zeros)
+    return _imu(stamp_ns, (0.0, math.sin(half), 0.0, math.cos(half)), (0.0, tel.pitch_rate, 0.0),
+                (tel.acc_x, 0.0, tel.acc_z))
+
+
+def _imu(stamp_ns: int, orientation: Sequence[float], angular_velocity: Sequence[float],
+         linear_acceleration: Sequence[float]) -> Any:
+    v3, zeros = _t("geometry_msgs/msg/Vector3"), np.zeros(9, dtype=np.float64)
+    return _t(IMU)(header(stamp_ns, "imu_link"), _t("geometry_msgs/msg/Quaternion")(*orientation), zeros,
+                   v3(*angular_velocity), zeros, v3(*linear_acceleration), zeros)
+
+
+# -- the per-cycle messages' CDR, fast: rosbags' bytes of one message, its numbers patched ----------
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: int32 sec, uint32 nanosec
+_MARK_STAMP = 0x51A3B7C9 * 1_000_000_000 + 0x2F1E4D3C
+"""A stamp whose two fields (sec, nanosec) are unlike anything else in the messages."""
+
+
+class CdrTemplate:
+    """The CDR of one shape of a message type (``serialize``'s bytes, from rosbags), with the
+    offsets where rosbags put its stamp and its float64 fields: ``pack`` copies the bytes and
+    writes the values there, and is ``serialize`` of the same message to the bit (a test holds
+    them equal for drawn messages). The offsets are found in rosbags' own output: ``build``
+    makes the message from a stamp and float fields, and is serialized once with marker values
+    in every field, each field's markers found exactly once.
+
+    Args:
+        typename: the ROS 2 type. build: ``(stamp_ns, *fields) -> message`` (rosbags' class).
+        sizes: the number of float64 values of each field (the shape).
+    """
+
+    def __init__(self, typename: str, build: Any, sizes: Sequence[int]) -> None:
+        marks, k = [], 1
+        for n in sizes:
+            marks.append(tuple(1000.0 + (k + i) / 7919.0 for i in range(n)))
+            k += n
+        self.data = serialize(build(_MARK_STAMP, *marks), typename)
+        self.stamp_at = self._find(_STAMP.pack(*divmod(_MARK_STAMP, 1_000_000_000)))
+        self.fields = tuple((struct.Struct(f"<{len(v)}d"), self._find(struct.pack(f"<{len(v)}d", *v))) for v in marks)
+
+    def _find(self, marker: bytes) -> int:
+        at = self.data.find(marker)
+        if at < 0 or self.data.find(marker, at + 1) >= 0:
+            raise ValueError("a field's markers are not once, contiguous, in rosbags' CDR of the template")
+        return at
+
+    def pack(self, stamp_ns: int, *fields: Sequence[float]) -> bytes:
+        """The CDR of the message ``build(stamp_ns, *fields)``; each field of its template's size."""
+        buf = bytearray(self.data)
+        _STAMP.pack_into(buf, self.stamp_at, *divmod(stamp_ns, 1_000_000_000))
+        for (packer, at), values in zip(self.fields, fields):
+            packer.pack_into(buf, at, *values)
+        return bytes(buf)
+
+
+@functools.cache
+def _joint_state_template() -> CdrTemplate:
+    return CdrTemplate(JOINT_STATE, _joint_state, (len(JOINTS),) * 3)
+
+
+@functools.cache
+def _imu_template() -> CdrTemplate:
+    return CdrTemplate(IMU, _imu, (4, 3, 3))
+
+
+def joint_state_cdr(tel: Telemetry, stamp_ns: int, per_amp: Sequence[float]) -> bytes:
+    """``serialize(joint_state(tel, stamp_ns, per_amp), JOINT_STATE)``, from the template of
+    ``len(JOINTS)`` joints (rosbags serializes any other shape)."""
+    n = len(JOINTS)
+    if not len(tel.position) == len(tel.velocity) == len(tel.current) == len(per_amp) == n:
+        return serialize(joint_state(tel, stamp_ns, np.asarray(per_amp, dtype=np.float64)), JOINT_STATE)
+    return _joint_state_template().pack(stamp_ns, tel.position, tel.velocity,
+                                        [c * k for c, k in zip(tel.current, per_amp)])
+
+
+def imu_cdr(tel: Telemetry, stamp_ns: int) -> bytes:
+    """``serialize(imu(tel, stamp_ns), IMU)``, from its template."""
+    half = tel.pitch / 2.0
+    return _imu_template().pack(stamp_ns, (0.0, math.sin(half), 0.0, math.cos(half)), (0.0, tel.pitch_rate, 0.0),
+                                (tel.acc_x, 0.0, tel.acc_z))
 
 
 def _kv(pairs: Iterable[tuple[str, object]]) -> list:
@@ -211,17 +290,41 @@ _CAN_CDR = struct.Struct("<4siII4sI???B8s")  # CDR header, Header (stamp, frame_
 
 
 def can_frame_cdr(stamp_ns: int, arbitration_id: int, flags: int, dlc: int, data: bytes) -> bytes:
-    """``serialize(can_frame(...), CAN_FRAME)``, packed with one struct: an episode has a dozen
-    frames a cycle, and rosbags' serializer takes ~50-100 us a frame with the message built. The
-    layout is rosbags' (a test holds it byte for byte to ``serialize`` for any frame)."""
+    """``serialize(can_frame(...), CAN_FRAME)``, packed with one struct (``can_frames_cdr``)."""
+    return can_frames_cdr(stamp_ns, [(arbitration_id, flags, dlc, data)])[0]
+
+
+def can_frames_cdr(stamp_ns: int, frames: list) -> list[bytes]:
+    """``serialize(can_frame(...), CAN_FRAME)`` of each frame of one burst (``AgentBus.tap``), all
+    stamped ``stamp_ns``: ``(COB-ID, data)`` pairs (standard data frames) or ``(id, flags, dlc,
+    data)``. Packed with one struct a frame: an episode has ~18 frames a cycle, and rosbags'
+    serializer takes ~50-100 us a frame with the message built. The layout is rosbags' (a test
+    holds it byte for byte to ``serialize`` for any frame)."""
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
-    return _CAN_CDR.pack(b"\x00\x01\x00\x00", sec, nsec, 4, b"can\x00", arbitration_id, bool(flags & FLAG_REMOTE),
-                         bool(flags & FLAG_EXTENDED), bool(flags & FLAG_ERROR), dlc, bytes(data[:8]))
+    pack, head, frame_id = _CAN_CDR.pack, b"\x00\x01\x00\x00", b"can\x00"
+    return [pack(head, sec, nsec, 4, frame_id, f[0], False, False, False, len(f[1]), bytes(f[1][:8])) if len(f) == 2
+            else pack(head, sec, nsec, 4, frame_id, f[0], bool(f[1] & FLAG_REMOTE), bool(f[1] & FLAG_EXTENDED),
+                      bool(f[1] & FLAG_ERROR), f[2], bytes(f[3][:8]))
+            for f in frames]
 
 
 def log(stamp_ns: int, level: int, message: str, name: str) -> Any:
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
     return _t(LOG)(_t("builtin_interfaces/msg/Time")(sec, nsec), level, message, name, "", 0)
+
+
+def warm_up() -> None:
+    """What each type costs once, done before the first episode: rosbags compiles a type's
+    serializer at its first message (milliseconds a type), the templates of the per-cycle
+    messages are made from rosbags' CDR, the schemas generated. The feed process does it before
+    it says it is ready, so that its first episode does not carry it."""
+    _joint_state_template(), _imu_template()
+    status = _status(OK, "warm-up", "", "", [("key", "value")])
+    serialize(status, STATUS)
+    serialize(diagnostics(0, [status]), DIAGNOSTICS)
+    serialize(log(0, LOG_INFO, "", ""), LOG)
+    for typename in {**TOPICS, **RECORDED}.values():
+        msgdef(typename)
 
 
 def update_status(robot: str, update: Any) -> Any:

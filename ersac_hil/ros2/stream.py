@@ -6,9 +6,10 @@ Per episode (``begin`` ... ``end``): the ``episode`` message at the start and th
 ``joint_states`` and ``imu`` (to the live node every ``decimation``-th cycle, to the file every
 cycle), ``diagnostics`` when a status word changes, on an EMCY, at least every
 ``DIAGNOSTICS_EVERY`` cycles and at a fault, the events (``foxglove_msgs/msg/Log``) and the CAN
-frames (file only). Every message is serialized once (rosbags' CDR, ``messages``) and the same
-bytes go to the live node (``bridge.Ros2Node``) and the episode's MCAP file
-(``recorder.McapEpisodes``), either of which may be absent.
+frames (file only). Every message is serialized once (rosbags' CDR, ``messages``; the per-cycle
+ones and the CAN frames by its fast paths, the same bytes) and the same bytes go to the live
+node (``bridge.Ros2Node``) and the episode's MCAP file (``recorder.McapEpisodes``), either of
+which may be absent.
 """
 from __future__ import annotations
 
@@ -58,11 +59,14 @@ class EpisodeStream:
     def __init__(self, robot: str, per_amp: np.ndarray, node: Ros2Node | None = None, decimation: int = 1,
                  files: McapEpisodes | None = None) -> None:
         self.robot, self.per_amp, self.node, self.decimation, self.files = robot, per_amp, node, decimation, files
+        self._per_amp = tuple(float(k) for k in per_amp)  # the fast path multiplies floats
         self._episode: _Episode | None = None
         self.published = 0
 
     def _put(self, topic: str, msg: object, stamp_ns: int, live: bool = True) -> None:
-        data = m.serialize(msg, m.TOPICS[topic])
+        self._put_cdr(topic, m.serialize(msg, m.TOPICS[topic]), stamp_ns, live)
+
+    def _put_cdr(self, topic: str, data: bytes, stamp_ns: int, live: bool = True) -> None:
         if live and self.node is not None:
             self.node.put(topic, data)
             self.published += 1
@@ -97,8 +101,8 @@ class EpisodeStream:
         stamp = ep.stamp(tel.cycle)
         live = self.node is not None and ep.index % self.decimation == 0
         if live or self.files is not None:
-            self._put("joint_states", m.joint_state(tel, stamp, self.per_amp), stamp, live)
-            self._put("imu", m.imu(tel, stamp), stamp, live)
+            self._put_cdr("joint_states", m.joint_state_cdr(tel, stamp, self._per_amp), stamp, live)
+            self._put_cdr("imu", m.imu_cdr(tel, stamp), stamp, live)
         statuses = []
         if tel.status != ep.status or ep.index - ep.last_diagnostics >= DIAGNOSTICS_EVERY:
             statuses += m.device_statuses(self.robot, tel)

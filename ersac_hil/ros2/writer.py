@@ -13,9 +13,9 @@ FeedSettings)``; then the records of ``stream.EpisodeStream`` as the agent had t
 * ``("cycle", telemetry)``, ``("emcy", [EmcyEvent, ...])``;
 * ``("frames", timestamp_s, frames, sent)``: CAN frames of one burst (``AgentBus.tap``).
 
-The child says ``ready`` on its stdout once its node is declared and its files can be written
-(``FeedProcess`` waits for it, so the agent announces itself only with its ROS 2 node up) or
-exits with a one-line error.
+The child says ``ready`` on its stdout once its node is declared, its files can be written and
+what each message type costs once is done (``messages.warm_up``; ``FeedProcess`` waits for
+it, so the agent announces itself only with its ROS 2 node up) or exits with a one-line error.
 
 The child runs at a lower priority: normal scheduling (a real-time agent's SCHED_FIFO, which
 children inherit, is dropped) at niceness ``NICE``, so when the cores are busy the control
@@ -213,6 +213,7 @@ def serve(stream: BinaryIO, ready: BinaryIO | None = None) -> None:
             node = Ros2Node.declare(session, settings.ros2, settings.robot)
         episodes = EpisodeStream(settings.robot, m.torque_per_amp(settings.description), node,
                                  settings.ros2.decimation if settings.ros2 is not None else 1, files)
+        m.warm_up()
         if ready is not None:
             ready.write(READY)
             ready.close()
