@@ -6,9 +6,9 @@ import signal
 import time
 
 from ..waiting import wait_until
-from .history import history, n_ok
+from .history import History, history, n_ok
 from .outcome import POLL_S, RUN_S, Outcome, finish, mid_episode
-from .rig import Rig
+from .rig import TASK, Rig
 
 __all__ = ["PARTITION_S", "disk_full", "kill_all", "partition", "router_restart"]
 
@@ -64,12 +64,36 @@ def partition(rig: Rig) -> Outcome:
     off. ``during``: the store when the link went down (the attempt it cut pending)."""
     assert rig.netns is not None
     rig.start()
-    during = mid_episode(rig, 2)
-    t_fault = time.monotonic()
-    rig.netns.link(False, rig.cut_off)
+    during, t_fault = _cut_mid_episode(rig, 2)
     try:
         time.sleep(PARTITION_S)  # the fault's duration, not a synchronisation
     finally:
         rig.netns.link(True, rig.cut_off)
     return finish(rig, "partition" if rig.cut_off == "daemon" else "partition-agent", during, (), t_fault,
                   time.time())
+
+
+def _cut_mid_episode(rig: Rig, after: int) -> tuple[History, float]:
+    """Take the link down while an episode runs, once ``after`` episodes are ok: the store once
+    the link is down, and when it went down (``time.monotonic()``).
+
+    An episode takes a few tenths of a second, about what starting ``ip`` can take on a loaded
+    machine: the attempt seen running may have ended before the link went down. The cut is kept
+    only if that attempt still runs once the link is down (not stored ok, not answered by the
+    agent); else the link goes up at once (a cut of milliseconds the TCP links bridge) and the
+    next episode is tried."""
+    assert rig.netns is not None
+    while True:
+        running = [(idx, attempt) for idx, attempt, status in mid_episode(rig, after).attempts if status == "pending"]
+        t_fault = time.monotonic()
+        rig.netns.link(False, rig.cut_off)
+        during = history(rig.db)
+        assert during is not None
+        answered = rig.output("agent")
+        if all((idx, attempt, "pending") in during.attempts and f".{idx:05d}.{attempt} {TASK}:" not in answered
+               for idx, attempt in running):
+            return during, t_fault
+        rig.netns.link(True, rig.cut_off)
+        after = len({e[0] for e in during.episodes} | {idx for idx, _ in running})  # the next one's turn
+        if after >= rig.episodes:
+            raise RuntimeError(f"no episode of the {rig.episodes} ran long enough to be cut")
