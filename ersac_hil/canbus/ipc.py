@@ -23,7 +23,9 @@ Who may use the bus is who may open the path: the listener creates its socket wi
 (its own user only) and refuses a path where another bus still listens; a socket file left by
 a listener that died is replaced. It never leaves the computer, so it is for simulated robots
 only; a robot's bus is ``socketcan``. A bus does not hear its own frames unless
-``receive_own_messages=True`` (then on the sending thread, after the send). While the listener
+``receive_own_messages=True`` (then on the sending thread, after the send). Delivery is
+reliable and blocking, as CAN over Zenoh's congestion control ``BLOCK``: a connected bus that
+stops reading holds the sends to it up once its socket's buffer is full. While the listener
 is away (a simulator restarting), the connected buses' sends fail (``can.CanOperationError``,
 what a CAN controller reports when no node acknowledges) and they keep connecting again: the
 frames flow once a listener is back on the path.
