@@ -22,10 +22,13 @@ demo: $(STAMP)
 	$(BIN)/ersac-hil demo
 
 # one worker per core, a test file per worker at a time (module fixtures set up once); much of
-# the suite waits on processes and Zenoh, so two workers halve it on two cores; the 25 slowest
-# tests are listed at the end (where the suite's time goes)
+# the suite waits on processes and Zenoh, so two workers halve it on two cores. Files go out in
+# the order pytest collects them (--no-loadscope-reorder; pyproject's testpaths: the long files
+# of tests/e2e and tests/protocol first), so the short unit-test files at the end even the
+# workers out (xdist's default hands out the files with the most tests first and the one-test
+# end-to-end files last); the 25 slowest tests are listed at the end (where the suite's time goes)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=25
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=25
 
 # build the wheel, install it into a fresh venv, smoke-test it from outside the tree (CI runs it)
 wheel-smoke:
