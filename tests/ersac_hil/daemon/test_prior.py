@@ -32,6 +32,13 @@ def landscape(path, mean_std):  # noqa: ANN001
     return path
 
 
+#: The range of the final F2 of one 30-episode guarded run without a prior (kappa 2) over run
+#: seeds 1-12: 7.45-10.03. A run with the wrong prior, after its rejection, ends within it
+#: (7.43-9.90; seed for seed -2.3 to +2.2 off the run without the prior: two runs' last points
+#: differ by up to this much from the noise of 20 episodes alone).
+ONE_RUN_SPREAD_F2 = 2.6
+
+
 def F2(theta: float) -> float:
     m, s = true_cost(theta)
     return m + 2 * s
@@ -140,9 +147,11 @@ def test_a_wrong_prior_is_dropped_after_the_warm_up_and_the_run_recovers(router,
     # the critic's prior went with the rejection: robot episodes only from the 11th update on
     assert "prior" in states[9]["critic"] and not any("prior" in st["critic"] for st in states[10:])
     assert engine._learner.critic_prior is None
-    # from there it learns like a run without the prior: no worse by more than the noise of
-    # one run of 20 episodes (F2 in units of the synthetic cost: ~8-12 over the box)
-    assert F2(float(h.final_policy[0])) <= F2(float(h0.final_policy[0])) + 0.5
+    # from there it learns like a run without the prior: it leaves the wrong optimum and ends
+    # no worse than the run without it by more than the spread of one run's final F2 (F2 in
+    # units of the synthetic cost: ~7.4-19 over the box; the final point of one run is chaotic
+    # in the last bits of the arithmetic, e.g. the BLAS kernels of the processor)
+    assert F2(float(h.final_policy[0])) <= F2(float(h0.final_policy[0])) + ONE_RUN_SPREAD_F2
 
 
 def test_by_default_the_prior_gives_the_start_only(router, agent_factory, daemon_factory, tmp_path):
