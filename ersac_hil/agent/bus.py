@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -51,7 +52,7 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
-from canopen.sdo.constants import REQUEST_ABORTED
+from canopen.sdo.constants import REQUEST_ABORTED, RESPONSE_ABORTED
 
 from ersac_hil.agent import configure
 from ersac_hil.agent.errors import (BusDown, BusFault, ConfigRefused, HeartbeatLost, NodeMissing,
@@ -75,6 +76,8 @@ log = logging.getLogger(__name__)
 SPIN_S = 0.0003
 """Real time: the last part of the wait for a SYNC's slot spent spinning on the clock, not
 asleep (docs/performance.md)."""
+SDO_FRAME_BYTES = 8
+"""Every SDO request and answer is one frame of 8 bytes (CiA 301)."""
 
 
 @dataclass(frozen=True)
@@ -386,7 +389,7 @@ class AgentBus:
         """``client``'s send and wait, counting what its node owes: a request awaits one
         answer (an abort none); one it gave up waiting for awaits nothing any more, so its late
         answer, like any stray one, is a bus fault and never the answer of a later request."""
-        send_request, read_response = client.send_request, client.read_response
+        send_request = client.send_request
 
         def send(request) -> None:  # noqa: ANN001
             if request[0] & 0xE0 != REQUEST_ABORTED:
@@ -395,12 +398,23 @@ class AgentBus:
             send_request(request)
 
         def wait() -> bytes:
+            """canopen's ``read_response`` with the frame checked before it is parsed: an SDO
+            frame has 8 bytes, and a shorter one (a faulty node) would crash canopen's client
+            in ``struct.unpack_from`` instead of failing the transfer."""
             try:
-                return read_response()
-            except SdoCommunicationError:  # no answer in time: the transfer is over
+                response = client.responses.get(block=True, timeout=client.RESPONSE_TIMEOUT)
+            except queue.Empty:  # no answer in time: the transfer is over
                 with self._cond:
                     self._sdo_unanswered[name] = 0
-                raise
+                raise SdoCommunicationError("No SDO response received") from None
+            if len(response) != SDO_FRAME_BYTES:  # not an answer: the transfer is over
+                with self._cond:
+                    self._sdo_unanswered[name] = 0
+                raise BusFault(f"an SDO answer from {name} of {len(response)} bytes (an SDO frame has "
+                               f"{SDO_FRAME_BYTES})")
+            if response[0] == RESPONSE_ABORTED:
+                raise SdoAbortedError(int.from_bytes(response[4:8], "little"))
+            return response
         return send, wait
 
     def _on_sdo_answer(self, name: str) -> None:

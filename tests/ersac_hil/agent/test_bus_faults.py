@@ -169,3 +169,27 @@ def test_a_stray_sdo_answer_after_a_timed_out_transfer_is_a_bus_fault(rig):
     rig.bus.read(IMU.name, 0x1018, 1)  # answered: a transfer of that node after it is clean
     calm, _ = rig.episode()
     assert calm.status == "ok", calm.detail
+
+
+@pytest.mark.parametrize("can_backend", ["virtual"], indirect=True)
+@pytest.mark.parametrize("answer", [b"", bytes([0x43, 0x18, 0x10])], ids=["empty", "3-bytes"])
+def test_an_sdo_answer_shorter_than_a_frame_fails_the_transfer_as_a_bus_fault(rig, answer):
+    """A node answering a transfer with a frame shorter than an SDO frame's 8 bytes is a bus
+    fault naming it (canopen's client parsed it and crashed with struct.error: the fuzzer's
+    episode ended 'internal: unpack_from requires a buffer of at least 1 bytes'); the node's
+    transfers and episodes after it are clean."""
+    server = cobid.sdo_rx(IMU.node_id)
+    answering = list(rig.robot.network.subscribers[server])
+
+    def short_answer(can_id: int, data: bytearray, timestamp: float) -> None:
+        rig.rogue.bus.send(can.Message(arbitration_id=cobid.sdo_tx(IMU.node_id), data=answer, is_extended_id=False))
+    rig.robot.network.unsubscribe(server)
+    rig.robot.network.subscribe(server, short_answer)  # the rogue answers in the IMU's place
+    with pytest.raises(BusFault, match=f"an SDO answer from imu of {len(answer)} bytes"):
+        rig.bus.read(IMU.name, 0x1018, 1)
+    rig.robot.network.unsubscribe(server)
+    for callback in answering:
+        rig.robot.network.subscribe(server, callback)
+    assert rig.bus.read(IMU.name, 0x1018, 1) > 0  # its vendor id: the next transfer is clean
+    calm, _ = rig.episode()
+    assert calm.status == "ok", calm.detail
