@@ -66,19 +66,30 @@ class Master:
 
 
 class FrameLog:
-    """Every frame with one of ``cob_ids`` that ``network`` receives, in arrival order."""
+    """Every frame with one of ``cob_ids`` that ``network`` receives, in arrival order, with
+    when its dispatch reached this log (``times``, ``time.monotonic()``)."""
 
     def __init__(self, network: canopen.Network, cob_ids: Iterable[int]) -> None:
         self.network, self.cob_ids = network, tuple(cob_ids)
         self.frames: list[Frame] = []
+        self.times: list[float] = []
         self._cond = threading.Condition()
         for cob in self.cob_ids:
             network.subscribe(cob, self._on_frame)
 
     def _on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        now = time.monotonic()
         with self._cond:
             self.frames.append((can_id, bytes(data)))
+            self.times.append(now)
             self._cond.notify_all()
+
+    def longest_silence(self, cob_id: int, until: float) -> float:
+        """The longest time (s) between two arrivals of ``cob_id``, or from its last arrival
+        to ``until`` (a ``time.monotonic()``); infinite if it never arrived."""
+        with self._cond:
+            arrivals = [t for (c, _), t in zip(self.frames, self.times) if c == cob_id] + [until]
+        return max((b - a for a, b in zip(arrivals, arrivals[1:])), default=float("inf"))
 
     def count(self, cob_id: int) -> int:
         with self._cond:

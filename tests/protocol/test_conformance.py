@@ -6,13 +6,15 @@ same tests run against the reference nodes and the firmware simulator. Every wai
 """
 from __future__ import annotations
 
+import time
+
 import pytest
 from canopen.sdo import SdoAbortedError
 
 from ersac_hil.canbus.heartbeat import HeartbeatProducer
 from helpers.can_nodes import FrameLog, heartbeats, reported, sdo_barrier, set_state
 from protocol.can import cobid
-from protocol.can.devices import object_dictionary
+from protocol.can.devices import AGENT_NODE_ID, object_dictionary
 from protocol.can.objects import EmcyCode, Index, Status
 from protocol.can.pdo import pdo_maps
 from protocol.can.sdo import RANGE_ABORTS, AbortCode
@@ -149,10 +151,16 @@ def test_rpdo_takes_effect_at_sync(master):
         assert got == value, (name, hex(index), sub)
 
 
-def test_heartbeat_loss_gives_emcy_and_safe_state(master):
+#: How much later than a node's own handler the test's log may note a frame of the same dispatch.
+NOTING_SLACK_S = 0.05
+
+
+def test_heartbeat_loss_gives_emcy_and_safe_state(master, nodes):
     ids = {d.node_id for d in master.devices.values()}
     emcy = FrameLog(master.network, [cobid.emcy(i) for i in ids])
     beats = heartbeats(master.network, master.devices.values())
+    # the agent's heartbeat as the nodes receive it: their consumer's clock, not the producer's
+    agent = FrameLog(nodes.network, [cobid.heartbeat(AGENT_NODE_ID)])
     consumer_s = max(object_dictionary(d)[0x1016][1].default & 0xFFFF for d in master.devices.values()) / 1000
     producer_s = min(object_dictionary(d)[0x1017].default for d in master.devices.values()) / 1000
     with HeartbeatProducer(master.network):
@@ -162,7 +170,14 @@ def test_heartbeat_loss_gives_emcy_and_safe_state(master):
         beats.wait_for(lambda frames: all(beats.count(cobid.heartbeat(i)) >= n_beats for i in ids),
                        what=f"{n_beats} heartbeats of every node")
         sdo_barrier(master.nodes.values())
-        assert not emcy.frames
+        # no EMCY while the agent's heartbeat reached the nodes within their consumer time; a
+        # loaded machine can hold a frame (or the producer) for longer, and then the EMCY is right
+        silence = agent.longest_silence(cobid.heartbeat(AGENT_NODE_ID), time.monotonic())
+        assert not emcy.frames or silence > consumer_s - NOTING_SLACK_S, (
+            f"EMCY of nodes {sorted({c & 0x7F for c, _ in emcy.frames})} while the agent's heartbeat never "
+            f"stayed away from the nodes for longer "
+            f"than {1000 * silence:.0f} ms (consumer time {1000 * consumer_s:.0f} ms)")
+    agent.close()
     emcy.wait_for(lambda frames: {c & 0x7F for c, _ in frames} == ids, what="EMCY from every node")
     codes = {}
     for can_id, data in emcy.frames:
