@@ -5,6 +5,7 @@
 * ``Master`` - a canopen network with a ``RemoteNode`` per device, built from the EDS files.
 * ``FrameLog`` - every frame of some COB-IDs in arrival order; wait for a condition on them;
   ``heartbeats``/``reported``/``set_state`` for NMT states as the nodes report them.
+* ``SdoTrace`` - the SDO frames both sides received, for the report of a test that failed.
 * ``sdo_barrier`` - an SDO round trip to each node: everything a node sent before its answer
   has been dispatched on the master's side when it returns (frames of one sender arrive and
   are dispatched in order), so "nothing arrived" can be asserted without sleeping.
@@ -117,6 +118,32 @@ class FrameLog:
     def close(self) -> None:
         for cob in self.cob_ids:
             self.network.unsubscribe(cob, self._on_frame)
+
+
+class SdoTrace:
+    """The SDO frames of ``devices`` as the master's network and the nodes' network receive
+    them, so that a test an SDO answer never reached can say which way the frame was lost:
+    a request the nodes never received, or an answer the master never received."""
+
+    def __init__(self, master: canopen.Network, nodes: canopen.Network, devices: Iterable[Device]) -> None:
+        cobs = [c for d in devices for c in (cobid.sdo_rx(d.node_id), cobid.sdo_tx(d.node_id))]
+        self.start = time.monotonic()
+        self.logs = {"master": FrameLog(master, cobs), "nodes": FrameLog(nodes, cobs)}
+
+    def describe(self, last: int = 24) -> str:
+        """The last ``last`` frames of both sides in time order, one a line: ms since the
+        start, which side received it, COB-ID, the first four data bytes (command, index,
+        subindex)."""
+        rows = sorted((t, side, can_id, data[:4].hex(" "))
+                      for side, log in self.logs.items()
+                      for (can_id, data), t in zip(list(log.frames), list(log.times)))
+        lines = [f"{1000 * (t - self.start):9.1f} ms  {side:6} received {can_id:#05x} {data}"
+                 for t, side, can_id, data in rows[-last:]]
+        return "\n".join(lines) or "no SDO frame received by either side"
+
+    def close(self) -> None:
+        for log in self.logs.values():
+            log.close()
 
 
 def heartbeats(network: canopen.Network, devices: Iterable[Device]) -> FrameLog:
