@@ -130,7 +130,7 @@ class Daemon:
         # nothing is written before the daemon can run: an existing store is checked read-only
         # first, the store (its directory, the run) is created only once the session is open
         check_store(self.config)
-        self.session = open_session(resolve_config(self.config.zenoh_options, connect_timeout_s=10.0),
+        self.session = open_session(resolve_config(self.config.zenoh_options, default_connect_timeout_s=10.0),
                                     insecure=self.config.insecure)
         self.store = Store(self.config.db)
         self.learning = learning = LearningRun(self.store, self.config)

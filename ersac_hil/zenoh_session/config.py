@@ -163,6 +163,7 @@ def resolve_config(
     mode: str = "client",
     listen: Sequence[str] = (),
     connect_timeout_s: float | None = None,
+    default_connect_timeout_s: float | None = None,
 ) -> zenoh.Config:
     """The session configuration of a command: the one place every command resolves it.
 
@@ -173,6 +174,8 @@ def resolve_config(
       else the file's, else :data:`DEFAULT_ENDPOINT`; a client never listens; ``listen``
       gives a peer's listeners;
     * scouting: multicast off and gossip off unless the file sets them, no scouting delay;
+    * the connect timeout: ``connect_timeout_s`` (explicit), else the file's
+      ``connect/timeout_ms``, else ``default_connect_timeout_s`` (the command's), else Zenoh's;
     * everything else (TLS certificates, access control, timeouts) comes from the file.
 
     The result passes :func:`check_config` with ``options.insecure``.
@@ -210,6 +213,8 @@ def resolve_config(
                              ("scouting/delay", 0)):
             if json_at(config, key) is None:
                 config.insert_json5(key, json.dumps(default))
+        if connect_timeout_s is None and json_at(config, "connect/timeout_ms") is None:
+            connect_timeout_s = default_connect_timeout_s
         if connect_timeout_s is not None:
             config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
     except zenoh.ZError as exc:

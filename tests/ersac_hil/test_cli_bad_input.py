@@ -216,9 +216,12 @@ def test_a_daemon_without_a_session_writes_nothing(tmp_path, capsys):
     """No router: the daemon fails to open its session (exit 1, one line) before it creates the
     store, its directories or a run - nor does it touch a store that is there."""
     given = _given(tmp_path / "given")
+    quick = tmp_path / "quick.json5"  # the file's connect timeout, not the daemon's 10 s
+    quick.write_text("{ connect: { timeout_ms: 500 } }")
     before = _tree(tmp_path)
     for db in (tmp_path / "no" / "such" / "dir" / "x.db", given / "bracing.db"):
-        code, err = _run_in_process(["daemon", "--robot", "r", *Z, "--db", str(db)], capsys)
+        code, err = _run_in_process(["daemon", "--robot", "r", *Z, "--zenoh-config", str(quick), "--db", str(db)],
+                                    capsys)
         lines = [line for line in err.splitlines() if line.strip()]
         assert code == 1 and len(lines) == 1 and "zenoh session" in lines[0], err
         assert _tree(tmp_path) == before

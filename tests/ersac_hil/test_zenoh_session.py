@@ -183,6 +183,17 @@ def test_resolve_config_defaults_flags_and_file(tmp_path):
     assert json.loads(peer.get_json("listen/endpoints")) == ["tcp/127.0.0.9:7003"]
 
 
+def test_the_connect_timeout_is_the_explicit_one_then_the_files_then_the_commands(tmp_path):
+    path = _write(tmp_path, "t.json5", "{ connect: { timeout_ms: 1500 } }")
+
+    def timeout_ms(options: ZenohOptions, **kwargs) -> object:
+        return json.loads(resolve_config(options, **kwargs).get_json("connect/timeout_ms"))
+    assert timeout_ms(ZenohOptions()) is None  # Zenoh's own
+    assert timeout_ms(ZenohOptions(), default_connect_timeout_s=10.0) == 10000
+    assert timeout_ms(ZenohOptions(config_file=path), default_connect_timeout_s=10.0) == 1500  # the file's
+    assert timeout_ms(ZenohOptions(config_file=path), connect_timeout_s=0.5, default_connect_timeout_s=10.0) == 500
+
+
 def test_resolve_config_refusals(tmp_path):
     with pytest.raises(ZenohConfigError, match="no such file"):
         resolve_config(ZenohOptions(config_file=str(tmp_path / "missing.json5")))
