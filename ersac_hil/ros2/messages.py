@@ -130,9 +130,13 @@ def _joint_state(stamp_ns: int, position: Sequence[float], velocity: Sequence[fl
 
 
 def imu(tel: Telemetry, stamp_ns: int) -> Any:
+    return _imu(stamp_ns, *_imu_fields(tel))
+
+
+def _imu_fields(tel: Telemetry) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """Orientation (a pitch about y), angular velocity and linear acceleration of ``tel``."""
     half = tel.pitch / 2.0
-    return _imu(stamp_ns, (0.0, math.sin(half), 0.0, math.cos(half)), (0.0, tel.pitch_rate, 0.0),
-                (tel.acc_x, 0.0, tel.acc_z))
+    return (0.0, math.sin(half), 0.0, math.cos(half)), (0.0, tel.pitch_rate, 0.0), (tel.acc_x, 0.0, tel.acc_z)
 
 
 def _imu(stamp_ns: int, orientation: Sequence[float], angular_velocity: Sequence[float],
@@ -207,9 +211,7 @@ def joint_state_cdr(tel: Telemetry, stamp_ns: int, per_amp: Sequence[float]) -> 
 
 def imu_cdr(tel: Telemetry, stamp_ns: int) -> bytes:
     """``serialize(imu(tel, stamp_ns), IMU)``, from its template."""
-    half = tel.pitch / 2.0
-    return _imu_template().pack(stamp_ns, (0.0, math.sin(half), 0.0, math.cos(half)), (0.0, tel.pitch_rate, 0.0),
-                                (tel.acc_x, 0.0, tel.acc_z))
+    return _imu_template().pack(stamp_ns, *_imu_fields(tel))
 
 
 def _kv(pairs: Iterable[tuple[str, object]]) -> list:
