@@ -5,8 +5,9 @@ gets a low stiffness (a tenth of the description's ``stiffness_range`` maximum, 
 10 ms), setpoints at the measured positions of its axes, and then, paced by the wall clock at
 the description's SYNC period, the moved axis's setpoint ramps by ``angle`` (towards the middle
 of its range) and back. Only that node's RPDO carries ENABLE; every other node stays disabled.
-At the end, and on any error or Ctrl-C, the node's control word goes back to 0 and every node
-to pre-operational. A wheel (a torque axis) moves the robot: it is not offered here.
+At the end the node's control word goes back to 0 and its status word (0x2010) is read until
+it reports operation disabled (``MoveFailed`` if it does not within ``DISABLE_CONFIRM_S``); on any
+error or Ctrl-C the control word goes back to 0 too; then every node goes to pre-operational. A wheel (a torque axis) moves the robot: it is not offered here.
 """
 from __future__ import annotations
 
@@ -21,10 +22,13 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ersac_hil.commission.scan import NoAnswer, read_value
 from protocol.can import cobid
 from protocol.can.busconfig import BusConfig, open_network
-from protocol.can.objects import POSITION, STIFFNESS, DAMPING, Control, Index
+from protocol.can.objects import POSITION, STIFFNESS, DAMPING, Control, Index, Status
 from protocol.can.pdo import pdo_maps, pdo_struct
 from protocol.robot import RobotDescription
 from protocol.robot.eds import object_dictionary_file
+
+DISABLE_CONFIRM_S = 1.0
+"""How long the node may take to report its axis disabled after the move (status 0x2010)."""
 
 
 class MoveRefused(Exception):
@@ -32,7 +36,8 @@ class MoveRefused(Exception):
 
 
 class MoveFailed(MoveRefused):
-    """The node stopped answering during the move (it was disabled again)."""
+    """The node stopped answering during the move (it was disabled again), or did not report
+    its axis disabled after it."""
 
 
 def move_axis(description: RobotDescription, bus: BusConfig, axis_name: str, angle: float = 0.05,
@@ -95,6 +100,15 @@ def move_axis(description: RobotDescription, bus: BusConfig, axis_name: str, ang
             t_next += period
             time.sleep(max(0.0, t_next - time.perf_counter()))
         end = position(axis.subindex)
+        send(0, start)  # disabled again, and confirmed by the node (the SDO answer comes after the SYNC)
+        deadline = time.monotonic() + DISABLE_CONFIRM_S
+        while Status(int(read_value(node.sdo, od, Index.STATUS, 0))) & Status.OPERATION_ENABLED:
+            if time.monotonic() > deadline:
+                raise MoveFailed(f"{dev.name} 0x{dev.node_id:02X} still reports operation enabled "
+                                 f"{DISABLE_CONFIRM_S:g} s after the disable")
+            send(0, start)
+            time.sleep(period)
+        enabled = False
     except (SdoCommunicationError, SdoAbortedError, NoAnswer) as exc:
         raise MoveFailed(f"{dev.name} 0x{dev.node_id:02X}: {exc}") from None
     else:
