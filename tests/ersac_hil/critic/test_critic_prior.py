@@ -56,8 +56,24 @@ def test_the_residual_model_is_the_prior_plus_a_fit_of_the_residuals_where_that_
     expected = b.predict(Xs).f_mean + prior.mean_at(Xs)[0] if chose_prior else c.predict(Xs).f_mean
     np.testing.assert_allclose(pa.f_mean, expected, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(a.costs, y)  # what it was fitted to, not the residuals
-    if follows and n >= 20:
-        assert chose_prior  # costs that follow the simulated mean are explained by it
+
+
+def test_costs_that_follow_the_simulated_mean_are_mostly_explained_by_it() -> None:
+    """The residual model has the higher bound for costs that are the simulated mean plus
+    noise - mostly, not always: over a narrow neighbourhood (the mean changes by ~17 there) a
+    plain VHGP of the costs can fit the trend as well, and the evidence then keeps it (measured
+    at 25 points: 37 of seeds 0-39; the hypothesis test above once drew seed 5294, a 2.6 lower
+    bound). The prior then is not used for that fit, as with no prior."""
+    prior, n = sim_prior(), 25
+    chosen = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        X = np.clip(0.5 + 0.08 * rng.standard_normal((n, 1)), 0, 1)
+        y = prior.mean_at(X)[0] + 5.0 * rng.standard_normal(n)
+        fit = LocalCritic(observations(X, y), CriticConfig(epsilon=0.2, prior=prior, noise_model="vhgp")).fit_ids(
+            np.arange(n))
+        chosen += fit.prior is prior
+    assert chosen >= 34, chosen
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
