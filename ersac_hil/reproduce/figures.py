@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 
 from .stats import Landscape  # noqa: E402
 
-__all__ = ["landscape", "bracing_runs", "fig1", "fig2", "fig4", "learning_curves", "fig6"]
+__all__ = ["landscape", "bracing_runs", "fig1", "fig2", "panel_grid", "fig4", "learning_curves", "fig6"]
 
 DAMAGE = "tab:red"
 OK = "tab:blue"
@@ -152,14 +152,25 @@ def _strip(ax, pos: float, values: Sequence[float], colour: str, marks=None) -> 
     ax.scatter(pos + jitter, v, s=12, c=colours, zorder=3)
 
 
+def panel_grid(n: int, most_columns: int = 5) -> tuple[int, int]:
+    """(rows, columns) for ``n`` panels side by side: at most ``most_columns`` a row and the
+    rows as full as they can be (10 -> 2 x 5, 7 -> 2 x 4, 3 -> 1 x 3), so that a figure of many
+    run seeds reads at page width instead of a strip of narrow panels."""
+    rows = max(1, math.ceil(n / most_columns))
+    return rows, max(1, math.ceil(n / rows))
+
+
 def fig4(columns: Mapping[int, Sequence[tuple[str, Sequence[Any]]]], success: Callable[[Any], bool],
          path: Path) -> None:
     """Paper Fig. 4: test costs per stage (box + points, failures red), per run seed, with the
-    success rate under each box; ``success(trial)`` says whether a test trial succeeded."""
+    success rate under each box; ``success(trial)`` says whether a test trial succeeded. The
+    seeds' panels in a grid (:func:`panel_grid`) on one cost axis."""
     seeds = sorted(columns)
-    fig, axes = plt.subplots(1, len(seeds), figsize=(3.2 * len(seeds), 4), sharey=True,
+    rows, cols = panel_grid(len(seeds))
+    fig, axes = plt.subplots(rows, cols, figsize=(2.7 * cols + 0.6, 3.1 * rows + 0.5), sharey=True,
                              constrained_layout=True, squeeze=False)
-    for ax, seed in zip(axes[0], seeds):
+    panels = axes.ravel()
+    for ax, seed in zip(panels, seeds):
         labels = []
         for i, (label, trials) in enumerate(columns[seed]):
             ok = [t for t in trials if t.ok]
@@ -167,9 +178,12 @@ def fig4(columns: Mapping[int, Sequence[tuple[str, Sequence[Any]]]], success: Ca
             rate = np.mean([success(t) for t in trials]) if trials else math.nan
             labels.append(f"{label}\n{100 * rate:.0f} % ok")
         ax.set_xticks(range(len(labels)), labels, fontsize=8)
-        ax.set_title(f"run seed {seed}")
+        ax.set_title(f"run seed {seed}", fontsize=10)
         ax.grid(alpha=0.3, axis="y")
-    axes[0][0].set_ylabel("test cost J (failures red)")
+    for ax in panels[len(seeds):]:  # a last row that is not full: no empty axes
+        fig.delaxes(ax)
+    for row in axes:
+        row[0].set_ylabel("test cost J (failures red)")
     fig.suptitle("lifting, kappa 0: test trials of the initial and learned policies")
     _save(fig, path)
 
