@@ -71,8 +71,9 @@ def bracing_runs(runs: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], ta
         bx.axhline(y, color=c, ls=":", lw=1)
     ax.set_xlabel("episode")
     ax.set_ylabel("policy mean theta")
-    ax.legend(fontsize=8, loc="best")
     ax.grid(alpha=0.3)
+    # one legend under both panels, off the data (inside, the runs' lines pass under it)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=4, fontsize=8, frameon=False)
     for s in seeds:
         a, b = runs["2"][s].theta_after[-1][0], runs["0"][s].theta_after[-1][0]
         bx.plot([0, 1], [b, a], "-o", color="tab:purple" if a < b else "tab:orange", ms=4)
@@ -189,16 +190,23 @@ def fig4(columns: Mapping[int, Sequence[tuple[str, Sequence[Any]]]], success: Ca
 
 
 def learning_curves(histories: Mapping[int, Any], path: Path) -> None:
-    """Cost per episode of every run (damage red) and the running mean."""
-    fig, ax = plt.subplots(figsize=(8, 4.5), constrained_layout=True)
+    """Cost per episode of every run (damage red) and, where the runs are equally long, their
+    median per episode; the legend beside the axes."""
+    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
     for seed, h in sorted(histories.items()):
         idx = np.arange(1, h.n + 1)
-        line, = ax.plot(idx, h.cost, "-", lw=0.8, alpha=0.6, label=f"run seed {seed}")
+        ax.plot(idx, h.cost, "-", lw=0.8, alpha=0.55, label=f"run seed {seed}")
         if h.damage.any():
             ax.plot(idx[h.damage], h.cost[h.damage], "o", color=DAMAGE, ms=4)
+    lengths = {h.n for h in histories.values()}
+    if len(histories) > 1 and len(lengths) == 1 and lengths != {0}:
+        n = lengths.pop()
+        ax.plot(np.arange(1, n + 1), np.median([h.cost for h in histories.values()], axis=0), "-",
+                color="k", lw=2.2, label="median over run seeds")
     ax.set_xlabel("episode")
     ax.set_ylabel("cost J")
-    ax.legend(fontsize=8)
+    ax.set_title(f"learning runs: cost per episode ({len(histories)} run seeds)")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.grid(alpha=0.3)
     _save(fig, path)
 
