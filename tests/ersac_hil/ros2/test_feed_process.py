@@ -57,3 +57,25 @@ def test_a_group_sigterm_does_not_cut_the_files_short(tmp_path):
     counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
     assert counts["/ubot1/joint_states"] == counts["/ubot1/imu"] == 200
     assert counts["/ubot1/can"] == 1 and counts["/ubot1/events"] == 2
+
+
+def test_stop_now_at_any_moment_of_the_end_is_a_clean_exit(tmp_path):
+    """The agent's deadline (``STOP_NOW``) may meet a child that has just seen the end of its
+    input and is on its way out; the signal is sent again and again from then until the child
+    is gone, so it lands in every step of the way out. The child always ends by its own hand
+    (exit 0), never by the signal's default action (-SIGUSR1, which the interpreter's
+    finalization restored before the child left without it)."""
+    for episode in range(3):
+        process = FeedProcess(FeedSettings("ubot1", "/ubot1", record=str(tmp_path)))
+        request = EpisodeRequest(f"ep-s{episode}", "bracing", (0.5,), 5)
+        process.send([("begin", request, time.time_ns(), 5_000_000)])
+        process.send([("cycle", _telemetry(c)) for c in range(1, 21)])
+        process.send([("end", None, "stopped", time.time_ns(), 0)])
+        process._proc.stdin.close()  # the input ends
+        while process._proc.poll() is None:
+            try:
+                os.kill(process.pid, signal.SIGUSR1)
+            except ProcessLookupError:
+                break
+            time.sleep(0.0005)
+        assert process._proc.wait() == 0
