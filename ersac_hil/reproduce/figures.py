@@ -57,7 +57,8 @@ def landscape(land: Landscape, path: Path) -> None:
 def bracing_runs(runs: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], target: float,
                  neutral: float, path: Path) -> None:
     """Policy mean per update of every run (kappa 2 red, kappa 0 grey) and the final thetas
-    per seed, paired."""
+    per seed, paired: each run's ``final_policy`` (the select learner's final offline selection
+    where it made one), the theta the bracing statistics compare."""
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True,
                                  gridspec_kw={"width_ratios": [2, 1]})
     colours = {"2": "tab:red", "0": "tab:grey"}
@@ -75,7 +76,7 @@ def bracing_runs(runs: Mapping[str, Mapping[int, Any]], seeds: Sequence[int], ta
     # one legend under both panels, off the data (inside, the runs' lines pass under it)
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=4, fontsize=8, frameon=False)
     for s in seeds:
-        a, b = runs["2"][s].theta_after[-1][0], runs["0"][s].theta_after[-1][0]
+        a, b = runs["2"][s].final_policy[0], runs["0"][s].final_policy[0]
         bx.plot([0, 1], [b, a], "-o", color="tab:purple" if a < b else "tab:orange", ms=4)
     bx.set_xticks([0, 1], ["kappa 0", "kappa 2"])
     bx.set_ylabel("final theta")
