@@ -126,12 +126,16 @@ class Rig:
         return self
 
     def kill(self, *names: str) -> None:
-        """SIGKILL the process groups of ``names`` (default: every child) at once."""
-        for name in names or list(self.children):
+        """SIGKILL the process groups of ``names`` (default: every child) at once, the daemon's
+        first: it is the store's only writer, so the store is left as a power loss leaves it
+        (killed last, it had time on a loaded machine, between the kills, to see the router and
+        agent vanish and store the running attempt ``lost``)."""
+        order = sorted(names or list(self.children), key=lambda name: name != "daemon")
+        for name in order:
             child = self.children.get(name)
             if child is not None and child.alive():
                 os.killpg(child.pid, signal.SIGKILL)
-        for name in names or list(self.children):
+        for name in order:
             child = self.children.pop(name, None)
             if child is not None:
                 child.stop(0)
