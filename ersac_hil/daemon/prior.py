@@ -10,8 +10,9 @@ PATH is one of:
 - a daemon store (``.db``): the last run of the task in it, its offline selection for kappa
   (the learner rebuilt exactly as the run left it).
 
-The result is a :class:`~ersac_hil.learner.prior.SimPrior` for the run's kappa; stores are
-read as they are (read-only).
+The result is a :class:`~ersac_hil.learner.prior.SimPrior` for the run's kappa, with the
+simulated damage rate at its optimum where PATH has one (a landscape's ``damage`` column, the
+``damage`` term of the trials); stores are read as they are (read-only).
 """
 from __future__ import annotations
 
@@ -75,22 +76,27 @@ def _from_json(path: Path, task: str, kappa: float) -> SimPrior:
     if task != "bracing":
         raise PriorError(f"--prior {path}: a landscape of the bracing task, not of {task}")
     thetas = [[float(r["theta"])] for r in rows]
+    damages = [float(r["damage"]) for r in rows] if all("damage" in r for r in rows) else None
     return from_groups(thetas, [float(r["mean"]) for r in rows], [float(r["std"]) for r in rows], kappa,
-                       f"landscape {path.name} ({len(rows)} policies)")
+                       f"landscape {path.name} ({len(rows)} policies)", damages)
 
 
 def _from_trials(path: Path, task: str, kappa: float, weights: Mapping[str, float]) -> SimPrior:
     spec = get_task(task)
     groups: dict[tuple[float, ...], list[float]] = defaultdict(list)
+    broke: dict[tuple[float, ...], list[bool]] = defaultdict(list)
     with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
         for theta, terms in db.execute("SELECT theta, cost_terms FROM trials WHERE task = ? AND status = 'ok'", (task,)):
-            groups[tuple(json.loads(theta))].append(spec.total_cost(json.loads(terms), weights))
+            t, terms = tuple(json.loads(theta)), json.loads(terms)
+            groups[t].append(spec.total_cost(terms, weights))
+            broke[t].append(float(terms.get("damage", 0.0)) > 0)
     keep = [(t, np.asarray(c)) for t, c in groups.items() if len(c) >= MIN_GROUP]
     if not keep:
         raise PriorError(f"--prior {path}: no policy of {task} with at least {MIN_GROUP} episodes")
+    damages = [float(np.mean(broke[t])) for t, _ in keep] if "damage" in spec.term_names else None
     return from_groups([t for t, _ in keep], [float(c.mean()) for _, c in keep],
                        [float(c.std(ddof=1)) for _, c in keep], kappa,
-                       f"trials {path.parent.name}/{path.name} ({len(keep)} policies)")
+                       f"trials {path.parent.name}/{path.name} ({len(keep)} policies)", damages)
 
 
 def _from_store(path: Path, task: str, kappa: float, weights: Mapping[str, float]) -> SimPrior:

@@ -107,6 +107,68 @@ def test_costs_drawn_as_the_simulator_says_are_consistent_far_off_ones_are_not(m
         assert p.consistent(same)[0]
 
 
+def jump_costs(rng, n: int, damaged: np.ndarray, base: float = 176.7, spread: float = 4.0, jump: float = 90.0):
+    """Bracing-shaped warm-up costs: a normal base and a jump for every damaged episode."""
+    return base + spread * rng.standard_normal(n) + jump * damaged
+
+
+def test_one_broken_cable_in_the_warm_up_keeps_a_right_prior_when_damage_is_judged_apart():
+    # the simulator at the bracing kappa-2 optimum 0.35: mean 177.6, std 7.6 (mostly the 1 %
+    # of damaged episodes, +90 each, on a spread of 4), damage rate 0.01
+    p = SimPrior((0.35,), 177.6, 7.6, 2.0, "landscape", damage=0.01)
+    rng = np.random.default_rng(3)
+    hit = np.zeros(10, dtype=bool)
+    hit[4] = True
+    costs = jump_costs(rng, 10, hit)
+    ok, why = p.consistent(costs, hit)
+    assert ok and "1 of 10 damaged" in why, why
+    # a mean and spread over all costs take the one jump for a robot 3x noisier than simulated
+    ok, why = p.consistent(costs)
+    assert not ok and "spread" in why
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10), st.floats(0.0, 0.5), st.integers(0, 2**32 - 1))
+def test_the_damage_count_is_judged_by_its_binomial_tails(k, rate, seed):
+    from scipy.stats import binom
+
+    from ersac_hil.learner.prior import DAMAGE_ALPHA, DAMAGE_FLOOR
+    p = SimPrior((0.35,), 177.6, 7.6, 2.0, "landscape", damage=rate)
+    rng = np.random.default_rng(seed)
+    hit = np.arange(10) < k
+    costs = jump_costs(rng, 10, hit, base=177.6)
+    ok, why = p.consistent(costs, hit)
+    q = max(rate, DAMAGE_FLOOR)
+    tails = min(binom.sf(k - 1, 10, q), binom.cdf(k, 10, q))
+    if tails < DAMAGE_ALPHA:
+        assert not ok and f"damaged {k} of 10" in why
+    else:  # decided on the undamaged costs alone, as a mean and spread
+        assert ok == p.consistent(costs[~hit])[0] and f"{k} of 10 damaged" in why
+
+
+def test_a_robot_that_breaks_far_more_often_rejects_the_prior_by_the_count():
+    p = SimPrior((0.35,), 177.6, 7.6, 2.0, "landscape", damage=0.01)
+    hit = np.array([True, False, True, False, False, True, False, False, False, False])
+    ok, why = p.consistent(jump_costs(np.random.default_rng(0), 10, hit), hit)
+    assert not ok and "damaged 3 of 10" in why
+    with pytest.raises(ValueError, match="flags"):
+        p.consistent([1.0, 2.0], [True])
+
+
+def test_a_landscape_with_a_damage_rate_gives_it_to_the_prior(tmp_path):
+    rows = [{"theta": float(t), "mean": m, "std": s, "damage": 0.02 * i}
+            for i, (t, (m, s)) in enumerate(zip(GRID, map(true_cost, GRID)))]
+    f = tmp_path / "d.json"
+    f.write_text(json.dumps({"rows": rows}))
+    weights = {"damage": 10.0, "body_acc_sq": 0.1, "arm_power": 5.0}
+    p = load_prior(f, "bracing", 2.0, weights)
+    i = int(np.argmin([F2(t) for t in GRID]))
+    assert p.damage == rows[i]["damage"] and SimPrior.from_dict(p.to_dict()) == p
+    assert load_prior(landscape(tmp_path / "l.json", true_cost), "bracing", 2.0, weights).damage is None
+    old = {k: v for k, v in p.to_dict().items() if k != "damage"}  # a run stored before the rate
+    assert SimPrior.from_dict(old).damage is None
+
+
 def test_a_right_prior_starts_the_run_at_the_simulated_optimum(router, agent_factory, daemon_factory, tmp_path):
     """With --prior-use critic the landscape is also the critic's prior mean."""
     f = landscape(tmp_path / "l.json", true_cost)
