@@ -50,10 +50,11 @@ what is stored (complete seeds per method) without running an episode. ``--with-
 ``gaps``: the simulator prior on surrogate robots that differ from the simulator (``GAPS``:
 the landscape's damage rate moved in theta, the undamaged cost scaled; the simulator is the
 landscape), kappa 2, the default bracing learner in-process as the daemon runs it (the prior's
-start, its consistency check after the warm-up, the final selection): episodes until F(theta,
-2) of the policy stays within 5 % of the robot's optimum, damage events while learning, for
-no prior, the prior's start only, and the start with the critic's prior mean. Resumable
-(``--out``'s ``.runs.jsonl``).
+start, its consistency check after the warm-up - given the episodes' damage flags and the
+landscape's damage rate -, the final selection): episodes until F(theta, 2) of the policy
+stays within 5 % of the robot's optimum, damage events while learning, for no prior, the
+prior's start only, the start with the critic's prior mean, and ``--methods`` other ways of
+moving while that prior is kept (``GAP_METHODS``). Resumable (``--out``'s ``.runs.jsonl``).
 
 ``kappa0``: why kappa 0 runs end short of the mean's argmin (computed in seconds): how well
 the landscape's episodes locate the argmin, and the expected path of the paper's rule.
@@ -297,8 +298,21 @@ def surrogate_cost(theta: float, land: Landscape, rng: np.random.Generator) -> f
 #: simulated one.
 GAPS: dict[str, tuple[float, float]] = {"small": (-0.02, 1.02), "medium": (-0.05, 1.06), "wrong-optimum": (0.25, 1.0)}
 #: How a gap run uses the simulator: not at all, its optimum as the start (with the daemon's
-#: consistency check after the warm-up), or the start and the critic's prior mean.
-GAP_METHODS = ("no prior", "start only", "start + critic prior")
+#: consistency check after the warm-up), or the start and the critic's prior mean (``--prior-use
+#: critic``: while the prior is kept, model steps, ``ersac.PRIOR_GREEDY``); (start, critic prior,
+#: ERSAC keyword arguments). The last three: how else the learner could move while the critic
+#: prior is kept (``prior_greedy``: None the preset's gradient steps and interleaved search, the
+#: rule of the previous version; else (around, z, radius) of a ``GreedyRule``).
+GAP_METHODS: dict[str, tuple[bool, bool, dict]] = {
+    "no prior": (False, False, {}),
+    "start only": (True, False, {}),
+    "start + critic prior": (True, True, {}),
+    "critic prior + preset steps": (True, True, {"prior_greedy": None}),
+    "critic prior + model step z2": (True, True, {"prior_greedy": ("before", 2.0, 2.0)}),
+    "critic prior + model step r1": (True, True, {"prior_greedy": ("before", 1.0, 1.0)}),
+}
+#: The rows of the table unless ``--methods`` says otherwise.
+GAP_DEFAULT = ("no prior", "start only", "start + critic prior", "critic prior + preset steps")
 #: "F(theta, 2) within 5 % of the robot's optimum".
 BAND = 0.05
 
@@ -333,15 +347,21 @@ def _gap_run(job: tuple[str, str, float, int, str | None]) -> dict:
     from ersac_hil.learner.prior import from_groups
 
     gap, method, kappa, seed, path = job
+    from ersac_hil.learner.ersac import GreedyRule
+
+    start, critic, extra = GAP_METHODS[method]
+    if extra.get("prior_greedy") is not None:
+        around, z, radius = extra["prior_greedy"]
+        extra = {**extra, "prior_greedy": GreedyRule(z=z, radius=radius, min_move=0.0, around=around)}
     sim = Landscape.load(path)
     robot = robot_landscape(sim, *GAPS[gap])
     d = task_defaults("bracing")
-    prior = from_groups([[t] for t in sim.theta], sim.mean, sim.std, kappa, "landscape")
-    theta0 = d.theta0 if method == "no prior" else prior.theta
+    prior = from_groups([[t] for t in sim.theta], sim.mean, sim.std, kappa, "landscape", sim.damage)
+    theta0 = prior.theta if start else d.theta0
     with threadpool_limits(1, user_api="blas"):
         L = ERSAC(theta0, d.sigma, d.eta, kappa, d.epsilon, [[0.0, 1.0]], lr_range=d.lr_range, seed=seed,
-                  **default_learner())
-        if method == "start + critic prior":
+                  **{**default_learner(), **extra})
+        if critic:
             L.set_critic_prior(prior.critic_prior())
         rng = np.random.default_rng(10_000 + seed)
         path_theta, damaged, costs, rejected = [float(L.theta[0])], [], [], None
@@ -351,8 +371,8 @@ def _gap_run(job: tuple[str, str, float, int, str | None]) -> dict:
             L.tell(x, c)
             costs.append(c)
             damaged.append(dmg)
-            if method != "no prior" and i + 1 == L.min_observations:
-                ok, why = prior.consistent(costs)
+            if start and i + 1 == L.min_observations:
+                ok, why = prior.consistent(costs, damaged)
                 if not ok:
                     rejected = why
                     L.theta = d.theta0
@@ -381,7 +401,8 @@ def gaps_bench(args: argparse.Namespace) -> None:
     import multiprocessing as mp
     seeds, kappa = parse_seeds(args.seeds), 2.0
     gaps = args.gaps.split(",")
-    jobs = [(g, m, kappa, s, args.landscape) for s in seeds for g in gaps for m in GAP_METHODS]
+    methods = args.methods.split(",")
+    jobs = [(g, m, kappa, s, args.landscape) for s in seeds for g in gaps for m in methods]
     t0, load0 = time.monotonic(), os.getloadavg()[0]
     done: dict[tuple, dict] = {}
     runs = Path(args.out).with_suffix(".runs.jsonl") if args.out else None
@@ -408,7 +429,7 @@ def gaps_bench(args: argparse.Namespace) -> None:
     for g in gaps:
         robot = robot_landscape(sim, *GAPS[g])
         opt = robot.optimum(kappa)
-        for m in GAP_METHODS:
+        for m in methods:
             rows = [r for r in res if r["gap"] == g and r["method"] == m]
             n = [settled_after(r["theta"], robot, kappa) for r in rows]
             e = np.array([len(r["theta"]) if v is None else v for v in n], dtype=float)  # unsettled: > budget
@@ -824,6 +845,7 @@ def main(argv: list[str] | None = None) -> int:
     gp = sub.add_parser("gaps", help="the simulator prior on surrogate robots that differ from the simulator")
     gp.add_argument("--seeds", default="0-9")
     gp.add_argument("--gaps", default=",".join(GAPS))
+    gp.add_argument("--methods", default=",".join(GAP_DEFAULT), help=f"of {', '.join(GAP_METHODS)}")
     gp.add_argument("--out", default=None, help="JSON of every run")
     kp = sub.add_parser("kappa0", help="why kappa 0 runs end short of the mean's argmin (computed, seconds)")
     kp.add_argument("--n", type=int, default=100, help="episodes per policy behind the landscape")
@@ -835,7 +857,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--pairs", type=int, default=1)
     lp.add_argument("--physics", default=None, help="the simulators' --physics FILE (docs/physics.md)")
     args = ap.parse_args(argv)
-    known = {"surrogate": SURROGATE, "peers": PEER_METHODS}.get(args.what, METHODS)
+    known = {"surrogate": SURROGATE, "peers": PEER_METHODS, "gaps": GAP_METHODS}.get(args.what, METHODS)
     unknown = [m for m in getattr(args, "methods", "").split(",") if m and m not in known]
     if unknown:
         ap.error(f"unknown method {unknown[0]!r}; known: {', '.join(known)}")

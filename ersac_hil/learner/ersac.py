@@ -21,6 +21,11 @@ draws k perturbations around the same theta; tell_batch(executed, costs) records
 observations in row order and makes one update from the average of their eq. 10 terms,
 theta <- clip(theta - alpha mean_i(delta_i z_i), bounds).  k = 1 is exactly ask()/tell().
 
+With a simulator's prior mean in the critic (``CriticConfig.prior``, a kept ``--prior``) the
+policy mean moves by ``prior_greedy`` instead (default ``PRIOR_GREEDY``: a model step to the
+argmin of F~ within 2 sigma where the critic is confident of the gain; no gradient step);
+without one, ``prior_greedy`` changes nothing (docs/learner.md, "Simulator prior").
+
 Pending ask: ask() draws z once; until tell() it returns the same executed parameters (no
 new draw).  get_state() includes the pending parameters, so a resumed learner re-issues
 exactly the same ask.  tell() must be given those parameters (within 1e-9 of the bounds'
@@ -77,7 +82,7 @@ GREEDY_RADIUS = 1.5
 GREEDY_MIN_MOVE = 1.0
 GREEDY_Z = 2.0
 
-GREEDY_AROUND = ("data", "theta")
+GREEDY_AROUND = ("data", "theta", "before")
 
 
 @dataclass(frozen=True)
@@ -87,8 +92,10 @@ class GreedyRule:
     The argmin of F~ on the update's critic is searched within ``radius`` sqrt(d) sigma of
     ``around``: ``"data"`` the fit's observations within epsilon / 2 of theta (the default),
     ``"theta"`` theta alone (a trust-region step along F~, at most ``radius`` sqrt(d) sigma per
-    update). theta moves there if the move is at least ``min_move`` sigma in some coordinate
-    and F~(argmin) + ``z`` sd(F~(argmin)) < F~(theta) (``z`` 0: whenever F~ is lower)."""
+    update), ``"before"`` the policy mean before the update, whose gradient step is then not
+    taken (a model step: theta moves only where F~ says so). theta moves there if the move is
+    at least ``min_move`` sigma in some coordinate and F~(argmin) + ``z`` sd(F~(argmin)) <
+    F~(theta) (``z`` 0: whenever F~ is lower)."""
 
     z: float = GREEDY_Z
     radius: float = GREEDY_RADIUS
@@ -113,6 +120,10 @@ class GreedyRule:
         """The rule of a state (``None``: a state saved before the rule had settings)."""
         return cls() if data is None else cls(**data)
 
+
+#: How the policy mean moves while the critic has a simulator's prior mean (a kept ``--prior``,
+#: docs/learner.md "Simulator prior"): a model step, no gradient step.
+PRIOR_GREEDY = GreedyRule(z=1.0, radius=2.0, min_move=0.0, around="before")
 
 STATE_FORMAT = "ersac-hil/ersac-state"
 STATE_VERSION = 1
@@ -206,6 +217,7 @@ class ERSAC:
         max_step: float | None = MAX_STEP,
         interleave_every: int = 0,
         greedy: GreedyRule | None = None,
+        prior_greedy: GreedyRule | None = PRIOR_GREEDY,
     ) -> None:
         b = np.asarray(bounds, dtype=float)
         if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
@@ -244,6 +256,8 @@ class ERSAC:
             raise InvalidInputError("interleave_every must be an integer >= 0 (0: off)")
         if greedy is not None and not isinstance(greedy, GreedyRule):
             raise InvalidInputError("greedy must be a GreedyRule")
+        if prior_greedy is not None and not isinstance(prior_greedy, GreedyRule):
+            raise InvalidInputError("prior_greedy must be a GreedyRule")
 
         self._d = d
         self._theta = theta
@@ -254,6 +268,7 @@ class ERSAC:
         self._max_step = None if max_step is None else float(max_step)
         self._interleave = int(interleave_every)
         self._greedy = GreedyRule() if greedy is None else greedy
+        self._prior_greedy = prior_greedy
         self._skipped: list[tuple[int, str]] = []
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._observations = Observations(d, weights)
@@ -537,7 +552,9 @@ class ERSAC:
         new_theta = np.clip(raw, self._lo, self._hi)
         clipped = bool(np.any(raw != new_theta))
         offline = False
-        if self._interleave > 0 and (self._n_updates + 1) % self._interleave == 0:
+        if self._prior_greedy is not None and self._critic.config.prior is not None:
+            new_theta, offline = self._greedy_move(fit, new_theta, kappa, self._prior_greedy, theta)
+        elif self._interleave > 0 and (self._n_updates + 1) % self._interleave == 0:
             new_theta, offline = self._greedy_move(fit, new_theta, kappa)
         upd = Update(
             self._n_updates, theta, new_theta.copy(), executed, z, float(row(J_hat)), J_t, r_t,
@@ -546,12 +563,15 @@ class ERSAC:
         )
         return upd, new_theta, fit
 
-    def _greedy_move(self, fit: LocalFit, theta: np.ndarray, kappa: float) -> tuple[np.ndarray, bool]:
+    def _greedy_move(self, fit: LocalFit, theta: np.ndarray, kappa: float, rule: GreedyRule | None = None,
+                     before: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
         """Interleaved search: theta, or the argmin of F~ of this update's critic near theta
         if the critic is confident of the gain there (see ERSAC's module doc)."""
         X = np.asarray(fit.model.X)
-        d, rule = self._d, self._greedy
-        if rule.around == "theta":
+        d, rule = self._d, (self._greedy if rule is None else rule)
+        if rule.around == "before" and before is not None:
+            theta = before
+        if rule.around in ("theta", "before"):
             region = theta[None, :]
         else:
             region = X[np.linalg.norm(X - theta, axis=1) <= 0.5 * self._critic.config.epsilon]
@@ -645,6 +665,9 @@ class ERSAC:
             "max_step": self._max_step,
             "interleave_every": self._interleave,
             "greedy": self._greedy.to_dict(),
+            # only with a critic prior (the rule acts only then): other states stay as they were
+            **({} if self._critic.config.prior is None else
+               {"prior_greedy": None if self._prior_greedy is None else self._prior_greedy.to_dict()}),
             "critic": self._critic.config.to_dict(),
             "weights": self._observations.weights.to_dict(),
             "rng": _rng_state_to_json(self._rng),
@@ -655,6 +678,15 @@ class ERSAC:
             "last_fit": fit,
             "skipped_updates": [[i, reason] for i, reason in self._skipped],
         }
+
+    @staticmethod
+    def _prior_rule(state: Mapping[str, Any], critic: CriticConfig) -> GreedyRule | None:
+        """The prior rule of a state: its own; a state with a critic prior but no rule was
+        saved before the rule existed (the preset's steps then, as it was made); else the
+        default."""
+        if "prior_greedy" in state:
+            return None if state["prior_greedy"] is None else GreedyRule.from_dict(state["prior_greedy"])
+        return None if critic.prior is not None else PRIOR_GREEDY
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "ERSAC":
@@ -677,6 +709,7 @@ class ERSAC:
                 max_step=state.get("max_step", MAX_STEP),
                 interleave_every=state.get("interleave_every", 0),
                 greedy=GreedyRule.from_dict(state.get("greedy")),
+                prior_greedy=cls._prior_rule(state, critic),
             )
             learner._rng = _rng_from_json(state["rng"])
             if state["pending"] is not None:

@@ -178,3 +178,52 @@ def test_a_learner_with_a_prior_from_a_wrong_simulator_recovers(shift: float) ->
         x = L.ask()
         L.tell(x, float(robot.mean_at([x])[0][0] + math.exp(0.5 * robot.log_var_at([x])[0][0]) * rng.standard_normal()))
     assert abs(float(L.select(2.0, pessimism=2.0).theta[0]) - (0.29 + shift)) <= 0.1
+
+
+def _run(L: ERSAC, n: int, seed: int = 2, prior: CriticPrior | None = None) -> list:
+    rng = np.random.default_rng(seed)
+    truth = prior or sim_prior()
+    out = []
+    for _ in range(n):
+        x = L.ask()
+        out.append(L.tell(x, float(truth.mean_at([x])[0][0] + 6.0 * rng.standard_normal())))
+    return out
+
+
+def test_without_a_critic_prior_the_prior_rule_changes_nothing() -> None:
+    """The prior rule (ERSAC prior_greedy) acts only while the critic has a prior: a learner
+    without one takes the same steps, and saves the same state, whatever its prior rule."""
+    from ersac_hil.learner.ersac import PRIOR_GREEDY
+    make = lambda rule: ERSAC([0.3], 0.05, 0.7, 2.0, 0.2, [[0.0, 1.0]], seed=7, interleave_every=1,  # noqa: E731
+                              prior_greedy=rule)
+    a, b = make(None), make(PRIOR_GREEDY)
+    assert [u.to_dict() for u in _run(a, 25)] == [u.to_dict() for u in _run(b, 25)]
+    assert a.get_state() == b.get_state() and "prior_greedy" not in a.get_state()
+
+
+def test_while_the_prior_is_kept_theta_moves_only_by_model_steps_and_after_its_rejection_by_gradient_steps(
+        ) -> None:
+    """With a critic prior the policy mean moves only to the argmin of F~ within 2 sigma, and
+    only where F~ + sd(F~) is lower than at theta (no single-episode gradient step); once the
+    prior is taken away (rejected) the preset's gradient steps are back (here the guarded
+    rule: no interleaved search)."""
+    L = ERSAC([0.35], 0.05, 0.7, 2.0, 0.2, [[0.0, 1.0]], seed=3,
+              critic=CriticConfig(epsilon=0.2, prior=sim_prior()))
+    kept = [u for u in _run(L, 30) if not u.warmup]
+    assert all(u.offline or np.array_equal(u.theta_after, u.theta_before) for u in kept)
+    assert all(abs(u.theta_after[0] - u.theta_before[0]) <= 2 * 0.05 + 1e-9 for u in kept)
+    L.set_critic_prior(None)
+    after = _run(L, 8, seed=5)
+    assert not any(u.offline for u in after)
+    assert sum(not np.array_equal(u.theta_after, u.theta_before) for u in after) >= 6
+
+
+def test_a_state_saved_before_the_prior_rule_resumes_with_the_steps_it_was_made_with() -> None:
+    L = ERSAC([0.3], 0.05, 0.7, 2.0, 0.2, [[0.0, 1.0]], seed=5, interleave_every=1,
+              critic=CriticConfig(epsilon=0.2, prior=sim_prior()))
+    _run(L, 12)
+    state = json.loads(json.dumps(L.get_state()))
+    assert state["prior_greedy"]["around"] == "before"
+    assert ERSAC.from_state(state)._prior_greedy == L._prior_greedy
+    legacy = {k: v for k, v in state.items() if k != "prior_greedy"}
+    assert ERSAC.from_state(legacy)._prior_greedy is None
