@@ -191,6 +191,16 @@ class Engine:
         """The cost of every observation so far, in order (current weights)."""
         return [float(c) for c in self._learner.observations.costs]
 
+    @property
+    def observed_damage(self) -> list[bool] | None:
+        """Whether each observation so far damaged the robot (its ``damage`` cost term above
+        0), in order; None where the task has no ``damage`` term."""
+        obs = self._learner.observations
+        names = list(obs.weights.names)
+        if "damage" not in names:
+            return None
+        return [bool(v > 0) for v in obs.terms[:, names.index("damage")]]
+
     def set_kappa(self, kappa: float) -> None:
         self._learner.kappa = float(kappa)
 

@@ -116,7 +116,9 @@ class LearningRun:
 
         from .config import task_defaults
         prior = SimPrior.from_dict(self.run.settings["prior"])
-        ok, why = prior.consistent(self.engine.observed_costs[: self.n_episodes])
+        damaged = self.engine.observed_damage
+        ok, why = prior.consistent(self.engine.observed_costs[: self.n_episodes],
+                                   None if damaged is None else damaged[: self.n_episodes])
         if ok:
             return
         theta = task_defaults(self.run.task).theta0

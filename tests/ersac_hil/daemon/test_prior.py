@@ -225,3 +225,20 @@ def test_by_default_the_prior_gives_the_start_only(router, agent_factory, daemon
     assert "landscape" not in h.run.settings["prior"]
     with Store(daemon.config.db, readonly=True) as store:
         assert not any("prior" in u.state["critic"] for u in store.updates(h.run.run_id))
+
+
+def test_the_daemon_judges_the_warm_ups_damage_apart_from_its_cost(router, agent_factory, daemon_factory, tmp_path):
+    """The daemon hands the check each warm-up episode's damage (its ``damage`` term above 0):
+    a simulator whose costs are right but which says every episode breaks a cable is rejected
+    by the damage count (with the costs alone it would pass)."""
+    rows = [{"theta": float(t), "mean": m, "std": s, "damage": 1.0} for t, (m, s) in zip(GRID, map(true_cost, GRID))]
+    f = tmp_path / "l.json"
+    f.write_text(json.dumps({"rows": rows}))
+    agent_factory("dmg")
+    daemon = daemon_factory("dmg", episodes=12, kappa=2.0, prior=str(f))
+    assert daemon.finished.wait(60) and daemon.exit_code == 0
+    h = history(daemon.config.db)
+    assert h.run.settings["prior"]["damage"] == 1.0
+    with Store(daemon.config.db, readonly=True) as store:
+        (rejected,) = [c for c in store.changes(h.run.run_id) if c.source.startswith("prior rejected")]
+    assert "robot damaged" in rejected.source and "simulated rate of 1" in rejected.source
