@@ -109,7 +109,8 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
                 "x", color="tab:orange", label=f"failed attempts ({len(failed)})")
     ax.set_ylabel("cost J")
     ax.set_title(f"run {run.run_id}: {run.task}, {len(episodes)} episodes")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)  # off the data
+    if ax.get_legend_handles_labels()[0]:  # a run with no episode yet has nothing to name
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)  # off the data
     ax.grid(alpha=0.3)
     if updates:
         after = np.array([u.theta_after for u in updates])
@@ -122,7 +123,8 @@ def _learning_curve(path: Path, run: RunRecord, store: Store, episodes: list[Epi
                 bx.text(at[i], bx.get_ylim()[1], f" kappa {kappas[i]:g}", fontsize=7, va="top")
     bx.set_xlabel("episode")
     bx.set_ylabel("policy mean theta")
-    bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    if bx.get_legend_handles_labels()[0]:
+        bx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     bx.grid(alpha=0.3)
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import warnings
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -77,3 +78,16 @@ def test_a_run_too_short_for_a_critic_is_reported_without_critic_figures(router,
     assert summary["files"] == ["learning_curve.png", "summary.json"] and summary["episodes"] == episodes
     assert summary["critic_at_final_theta"] is None and summary["selection_by_kappa"] is None
     assert (out / "learning_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_run_without_an_episode_is_reported_without_a_warning(router, daemon_factory, tmp_path):
+    """A run whose agent never came (exit 4, resumable) has no episode: its report is the
+    learning curve's empty axes and the summary, and matplotlib says nothing (it warned of
+    legends with no artists)."""
+    daemon = daemon_factory("nobody", episodes=3, kappa=2.0, agent_wait_s=0.5)
+    assert daemon.finished.wait(60) and daemon.exit_code == 4
+    daemon.stop()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        summary = write_report(daemon.config.db, daemon.learning.run_id, tmp_path / "report")
+    assert summary["episodes"] == 0 and summary["files"] == ["learning_curve.png", "summary.json"]
