@@ -47,7 +47,7 @@ import numpy as np
 
 from ersac_hil.agent import configure, costs
 from ersac_hil.agent.bus import AgentBus, CycleTimes, EmcyEvent
-from ersac_hil.agent.errors import AgentFault, EmcyFault, HeartbeatLost
+from ersac_hil.agent.errors import AgentFault, BusFault, EmcyFault, HeartbeatLost
 from ersac_hil.agent.limits import SetpointLimits
 from ersac_hil.agent.lqr import BalanceController, BalanceDesign, LqrWeights, PendulumModel
 from ersac_hil.agent.robot import UBOT, RobotParameters
@@ -197,6 +197,10 @@ class EpisodeRunner:
             raise EstopEngaged(refusal)
         try:
             bus.wait_for_nodes(timeout_s=self.config.node_timeout_s)
+            try:  # what a node sent between episodes faults no episode
+                bus.check_bus()
+            except BusFault as exc:
+                log.warning("between episodes: %s", exc)
             bus.nmt_preop()
             testbench = self._testbench_present()
             realtime = pacing(self.safety.pacing, bus.config, testbench)  # LockstepRefused: nothing moved
@@ -235,8 +239,11 @@ class EpisodeRunner:
                 truth, flags = configure.read_truth(bus)
                 truth.update(task.ground_truth(bus, flags))
                 episode.truth.update({k: v for k, v in truth.items() if math.isfinite(v)})
-            except AgentFault:
-                pass
+                bus.check_bus()  # a faulty node's answer to a readout: no ok episode of it
+            except AgentFault as exc:
+                episode.status, episode.detail = exc.status, str(exc)
+                episode.count(_fault_counter(exc))
+                episode.truth.clear()
         episode.emcy = bus.emcy_events(emcy_mark)
         return self._result(plan, episode, wall0)
 

@@ -81,17 +81,10 @@ def robot():
 PHASES = {"configuration": Index.SCENARIO, "ground truth": Index.GROUND_TRUTH_FLAGS}
 
 
-READOUTS_UNCHECKED = pytest.mark.xfail(strict=True, reason=(
-    "the agent reads the ground truth after the episode's last bus check and drops a failed readout "
-    "(ersac_hil/agent/episode.py, EpisodeRunner.run: 'except AgentFault: pass'): the episode the rogue "
-    "answered in comes back ok, and the second answer (the rogue's, or the bench's own after the rogue's "
-    "wrong one) faults the next episode"))
-
-
 @pytest.mark.parametrize("phase, same_object", [
     ("configuration", False), ("configuration", True),
-    pytest.param("ground truth", False, marks=READOUTS_UNCHECKED),
-    pytest.param("ground truth", True, marks=READOUTS_UNCHECKED),
+    ("ground truth", False),
+    ("ground truth", True),
 ], ids=["configuration-another object", "configuration-a second answer", "ground truth-another object",
         "ground truth-a second answer"])
 def test_a_second_sdo_server_faults_the_episode_it_answers_in_and_no_other(robot, phase, same_object):
