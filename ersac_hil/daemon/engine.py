@@ -24,7 +24,7 @@ import numpy as np
 
 from ersac_hil.learner import ERSAC, CostWeights, InsufficientDataError
 from ersac_hil.learner.presets import LEGACY_LEARNER, preset
-from protocol.zenoh import get_task
+from protocol.zenoh import damaged, get_task
 
 from .store import UpdateRecord
 
@@ -199,7 +199,7 @@ class Engine:
         names = list(obs.weights.names)
         if "damage" not in names:
             return None
-        return [bool(v > 0) for v in obs.terms[:, names.index("damage")]]
+        return [bool(v) for v in damaged(dict(zip(names, obs.terms.T)))]
 
     def set_kappa(self, kappa: float) -> None:
         self._learner.kappa = float(kappa)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ersac_hil.learner.prior import SimPrior, from_groups
-from protocol.zenoh import get_task
+from protocol.zenoh import damaged, get_task
 
 __all__ = ["PriorError", "load_prior", "MIN_GROUP"]
 
@@ -89,7 +89,7 @@ def _from_trials(path: Path, task: str, kappa: float, weights: Mapping[str, floa
         for theta, terms in db.execute("SELECT theta, cost_terms FROM trials WHERE task = ? AND status = 'ok'", (task,)):
             t, terms = tuple(json.loads(theta)), json.loads(terms)
             groups[t].append(spec.total_cost(terms, weights))
-            broke[t].append(float(terms.get("damage", 0.0)) > 0)
+            broke[t].append(bool(damaged(terms)))
     keep = [(t, np.asarray(c)) for t, c in groups.items() if len(c) >= MIN_GROUP]
     if not keep:
         raise PriorError(f"--prior {path}: no policy of {task} with at least {MIN_GROUP} episodes")

@@ -34,7 +34,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from protocol.zenoh import get_task  # noqa: E402
+from protocol.zenoh import damaged, get_task  # noqa: E402
 
 from ..episode_series import read_series  # noqa: E402
 from .critic_plots import KAPPAS, TRADE_OFF_KAPPAS, critic_curve, plot_critic, plot_risk, selections  # noqa: E402
@@ -76,7 +76,7 @@ def cost_statistics(episodes: Sequence[EpisodeRecord], window: int = 10) -> dict
 def _damaged(episode: EpisodeRecord) -> bool:
     """The episode damaged the hardware (failure flag or a damage cost term)."""
     return (bool((episode.failures or {}).get("hardware_damage"))
-            or float((episode.cost_terms or {}).get("damage", 0.0)) > 0)
+            or bool(damaged(episode.cost_terms or {})))
 
 
 def _running_mean(values: np.ndarray, window: int = 5) -> np.ndarray:

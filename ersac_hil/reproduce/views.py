@@ -18,6 +18,7 @@ import numpy as np
 from ersac_hil.critic import VHGP, CriticError
 from ersac_hil.daemon.engine import Engine, NotEnoughData
 from ersac_hil.daemon.store import RunRecord, Store
+from protocol.zenoh import damaged
 
 __all__ = ["History", "history", "engine_after", "critic_curve", "global_fit"]
 
@@ -70,7 +71,7 @@ def history(db: Path) -> History:
         np.array([e.cost for e in eps], dtype=float),
         [dict(e.cost_terms or {}) for e in eps],
         np.array([bool((e.failures or {}).get("hardware_damage")) or
-                  float((e.cost_terms or {}).get("damage", 0.0)) > 0 for e in eps]),
+                  bool(damaged(e.cost_terms or {})) for e in eps]),
         np.array([u.theta_after for u in ups], dtype=float).reshape(-1, d),
         np.array(run.settings["theta0"], dtype=float), changes)
 

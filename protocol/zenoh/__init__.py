@@ -65,7 +65,7 @@ from .messages import (
     decode,
     message_types,
 )
-from .tasks import TASK_NAMES, TASKS, TaskSpec, get_task
+from .tasks import TASK_NAMES, TASKS, TaskSpec, damaged, get_task
 
 __all__ = [
     # keys
@@ -77,7 +77,7 @@ __all__ = [
     "VERSION", "SUPPORTED_VERSIONS", "MAX_PAYLOAD_BYTES", "Message", "decode", "message_types",
     "FrozenMap",
     # tasks
-    "TaskSpec", "TASKS", "TASK_NAMES", "get_task",
+    "TaskSpec", "TASKS", "TASK_NAMES", "get_task", "damaged",
     # episode
     "EpisodeRequest", "EpisodeResult", "EpisodeDone",
     "STATUSES", "FAILURE_FLAGS", "SEED_MAX", "MAX_DURATION_S",

@@ -37,8 +37,15 @@ from typing import Any, Literal
 from .errors import InvalidField
 from .fields import Finite, Name, NonNegative, Positive, Record, convert
 
-__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task", "weighted_total", "LIFTING_GOAL_HEIGHT_M",
+__all__ = ["TaskSpec", "TASKS", "TASK_NAMES", "get_task", "weighted_total", "damaged", "LIFTING_GOAL_HEIGHT_M",
            "LIFTING_GOAL_TOLERANCE_M"]
+
+
+def damaged(terms: Mapping[str, Any]) -> Any:
+    """Whether an episode damaged the hardware: its ``damage`` cost term above 0 (a task
+    without that term: never). Like :func:`weighted_total`, ``terms`` may hold one episode's
+    floats (the result is a bool) or a column per term (numpy arrays: a bool array)."""
+    return terms.get("damage", 0.0) > 0
 
 
 def weighted_total(terms: Mapping[str, Any], weights: Mapping[str, float]) -> Any:
