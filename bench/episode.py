@@ -212,11 +212,44 @@ def processes(config: BusConfig | str | None, n: int, realtime: bool,
             if realtime:
                 print("  " + "; ".join(line for line in scheduling if line))
             with router.open_client() as session:
-                return run_episodes(session, n, minutes)
+                before = cpu_seconds(sim.pid, agent.pid)
+                results = run_episodes(session, n, minutes)
+                after = cpu_seconds(sim.pid, agent.pid)
+                print("  CPU s of the episodes of the row below: " + "  ".join(
+                    f"{name} {after[name] - before.get(name, 0.0):.2f}" for name in after))
+                return results
     finally:
         for p in procs:
             p.terminate()
             p.communicate(timeout=10)
+
+
+_TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _proc_cpu(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` (all its threads), 0 when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / _TICK
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return []
+    return [int(c) for t in tasks for c in (t / "children").read_text().split()]
+
+
+def cpu_seconds(sim: int, agent: int) -> dict[str, float]:
+    """CPU seconds so far of the simulator, the agent, the agent's children (the ROS 2 feed
+    process) and this process (the embedded router and the client): where a variant's cost goes."""
+    return {"simulator": _proc_cpu(sim), "agent": _proc_cpu(agent),
+            "agent's children": sum(_proc_cpu(c) for c in _children(agent)),
+            "router+client": sum(os.times()[:2])}
 
 
 def report(backend: str, results: dict[str, list[EpisodeResult]]) -> None:

@@ -182,6 +182,10 @@ class AgentBus:
         self._last_commands = Commands()
         self._sdo_unanswered: dict[str, int] = {}  # requests sent whose answer has not come, per node
         self._sink: FrameSink | None = None
+        #: called on the SYNC loop's thread right after each SYNC is sent, while the nodes
+        #: answer it (in lock-step: while the simulator computes): short work that must never
+        #: wait but may share the loop's interpreter (the ROS 2 feed's hand-off, ``Feed.pump``)
+        self.while_waiting: Callable[[], None] | None = None
         self._tap_listener: _Tap | None = None
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -501,6 +505,8 @@ class AgentBus:
             send_frames(net, frames)  # RPDOs then SYNC, one burst where the bus can
         except (can.CanError, OSError, RuntimeError) as exc:
             raise BusDown(f"cycle {cycle}: send failed: {exc}") from exc
+        if self.while_waiting is not None:
+            self.while_waiting()
         timing = self.timing
         if realtime:
             self.times.jitter_s.append(t0 - self._next_sync)  # type: ignore[operator]

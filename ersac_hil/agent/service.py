@@ -184,6 +184,8 @@ class AgentService:
                 log.debug("undeclare: %s", exc)
         self._entities = []
         if self.feed is not None:
+            if self.bus is not None:
+                self.bus.while_waiting = None
             self.feed.stop()
             self.feed = None
         if self.session is not None:

@@ -1,17 +1,27 @@
-"""What the agent's hooks feed: a bounded queue, one thread that hands it on as it is, and the
-feed process (``writer``) that does everything else.
+"""What the agent's hooks feed: a bounded queue, handed on as it is to the feed process
+(``writer``), which does everything else.
 
 ``observe(tel)`` (the ``EpisodeRunner`` hook, on the SYNC loop's thread) and ``frames`` (the
 agent bus's tap, ``AgentBus.tap``: every frame it sends and receives) only append to a bounded
-queue, without a lock and without waking anyone (the thread looks every ``POLL_S``); when the
-queue is full the item is dropped and counted (``dropped``; per episode in the MCAP file's
-metadata and a warning), so the control loop never waits for ROS 2 or the disk. The thread
-hands the items unchanged (the cycle's ``Telemetry``, the frame bursts, the bus's new EMCY
-events), in small batches (``BATCH``: a pickle of one holds the interpreter briefly), down the
-pipe of the feed process, which makes the ROS 2 messages, publishes them as the agent's ROS 2
-node and writes the MCAP files: no ROS 2 serialization, no Zenoh put and no file in the agent's
-interpreter. ``begin``/``end`` frame an episode; ``end`` returns the file's name at once (the
-file appears under it when complete, ``recorder``).
+queue, without a lock and without waking anyone; when the queue is full the item is dropped
+and counted (``dropped``; per episode in the MCAP file's metadata and a warning), so the control
+loop never waits for ROS 2 or the disk. The items (the cycle's ``Telemetry``, the frame bursts,
+the bus's new EMCY events) go unchanged, in batches, down the pipe of the feed process, which
+makes the ROS 2 messages, publishes them as the agent's ROS 2 node and writes the MCAP files:
+no ROS 2 serialization, no Zenoh put and no file in the agent's interpreter.
+
+Who hands them on: during an episode, the SYNC loop itself (``pump``, the agent bus's
+``while_waiting``), right after each SYNC is sent, while the nodes answer it: each cycle what
+the last one queued, with a write that never waits (``FeedProcess.try_send``). In lock-step
+the simulator computes then, so the hand-off takes little from the episode's wall time, where
+a thread of its own, woken beside the loop, took the interpreter from it (lock-step with the
+bridge and recording, side by side: 2.91 s against the thread's 3.19 s, and 2.5 % below
+off; batches of a few cycles from the loop cost more wall time again, though they halve the
+feed process's CPU: ``bench/episode.py``, docs/ros2.md). The feed's thread does the rest:
+begin/end and stop, a pipe that was full (it may wait on it, the loop never does), and what a
+loop that stopped cycling left (it looks every ``POLL_S`` during an episode). One of them at a
+time, in queue order. ``begin``/``end`` frame an episode; ``end`` returns the file's name at
+once (the file appears under it when complete, ``recorder``).
 """
 from __future__ import annotations
 
@@ -32,11 +42,14 @@ from protocol.zenoh import EpisodeRequest, EpisodeResult
 log = logging.getLogger(__name__)
 
 BATCH = 32
-"""Items handed to the feed process in one pickle at most."""
-POLL_S = 0.01
-"""How often the thread looks for new items during an episode (two SYNC periods at 200 Hz: each
-look costs the agent's interpreter more than handing on a cycle's items, and the feed process
-runs behind anyway)."""
+"""Items the thread hands to the feed process in one pickle at most."""
+PUMP_MAX = 128
+"""Items the SYNC loop hands on at once at most (one pickle of ~60 us)."""
+POLL_S = 0.1
+"""How often the thread looks for items the SYNC loop left during an episode (a loop that
+stopped cycling: a fault, a long wait)."""
+CONTROL = ("begin", "end")
+"""Items only the thread hands on (it keeps the episode's state)."""
 
 
 class Feed:
@@ -58,6 +71,7 @@ class Feed:
         self._items: deque = deque()
         self._capacity = queue_size
         self._wake = threading.Event()
+        self._consumer = threading.Lock()  # held by whoever hands items on: one at a time, in order
         self._drop_lock = threading.Lock()  # drops are counted from the SYNC loop's and the bus's threads
         self._thread: threading.Thread | None = None
         self._framing = False  # between begin and end: the tap's frames are queued
@@ -85,6 +99,7 @@ class Feed:
         feed = cls(process, bus.emcy_events, options.queue_size, config.record).start()
         if config.record is not None:
             bus.tap(feed.frames)
+        bus.while_waiting = feed.pump
         return feed
 
     def start(self) -> "Feed":
@@ -132,6 +147,30 @@ class Feed:
         if self._framing:
             self._offer(("frames", timestamp, frames, sent))
 
+    def pump(self) -> None:
+        """Hand on what is queued (the last cycle's telemetry and frames), from the SYNC loop
+        while the nodes answer its SYNC (the agent bus's ``while_waiting``); never waits: nothing is done while the thread hands on (or waits
+        on a full pipe), nor beyond a control item, and a batch the pipe has no room for goes
+        back to the queue's head, for the thread (woken)."""
+        items = self._items
+        if not items or not self._consumer.acquire(blocking=False):
+            return
+        try:
+            batch = []
+            while items and len(batch) < PUMP_MAX:
+                head = items[0]
+                if head is None or head[0] in CONTROL:
+                    break
+                batch.append(items.popleft())
+            batch += self._new_emcy()
+            if batch and not self.process.try_send(batch):
+                items.extendleft(reversed(batch))  # producers only append: the order stays
+                self._wake.set()
+            elif self.process.unsent:  # the pipe took part of the batch: the thread writes the rest
+                self._wake.set()
+        finally:
+            self._consumer.release()
+
     def _control(self, item: tuple | None) -> None:
         """Begin, end, stop: never dropped, and the thread is woken for them."""
         self._items.append(item)
@@ -156,27 +195,34 @@ class Feed:
 
     # -- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
-        items, batch = self._items, []
         while True:
             self._wake.wait(POLL_S if self._in_episode else None)
             self._wake.clear()
-            while items:
-                item = items.popleft()
-                if item is None:
-                    self._send(batch)
+            with self._consumer:
+                if not self._hand_on():
                     return
-                if item[0] == "begin":
-                    item = self._on_begin(*item[1:])
-                elif item[0] == "end":
-                    batch += self._new_emcy()
-                    item = self._on_end(*item[1:])
-                batch.append(item)
-                if len(batch) >= BATCH:
-                    batch = self._send(batch)
-            batch = self._send(batch + self._new_emcy())
+
+    def _hand_on(self) -> bool:
+        """Everything queued to the feed process (holding ``_consumer``); False at the stop."""
+        items, batch = self._items, []
+        while items:
+            item = items.popleft()
+            if item is None:
+                self._send(batch)
+                return False
+            if item[0] == "begin":
+                item = self._on_begin(*item[1:])
+            elif item[0] == "end":
+                batch += self._new_emcy()
+                item = self._on_end(*item[1:])
+            batch.append(item)
+            if len(batch) >= BATCH:
+                batch = self._send(batch)
+        self._send(batch + self._new_emcy())
+        return True
 
     def _send(self, batch: list) -> list:
-        if batch:
+        if batch or self.process.unsent:  # unsent: the tail of a batch the SYNC loop began
             self.process.send(batch)
             time.sleep(0)  # let a waiting SYNC loop or receive thread have the interpreter
         return []

@@ -5,7 +5,8 @@ the agent's interpreter (and its lock) with the SYNC loop. It opens its session 
 agent's Zenoh configuration (the same endpoints, the same certificate: the same identity to
 the router's access control), listening nowhere.
 
-The agent (``FeedProcess``, from the feed's thread) sends batches of records down the child's
+The agent (``FeedProcess``, from the SYNC loop's thread while the nodes answer, or from the
+feed's thread) sends batches of records down the child's
 stdin, each a length-prefixed pickle of a list of tuples, the first one ``("open",
 FeedSettings)``; then the records of ``stream.EpisodeStream`` as the agent had them:
 
@@ -105,6 +106,12 @@ class FeedProcess:
             fcntl.fcntl(self._proc.stdin, getattr(fcntl, "F_SETPIPE_SZ", 1031), PIPE_BYTES)  # type: ignore[arg-type]
         except OSError:  # above /proc/sys/fs/pipe-max-size: the default stays
             pass
+        try:  # the same pipe, a file description of its own that never waits (try_send)
+            self._nonblocking: int | None = os.open(f"/proc/self/fd/{self._proc.stdin.fileno()}",  # type: ignore[union-attr]
+                                                    os.O_WRONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:  # no /proc: try_send never writes, send does
+            self._nonblocking = None
+        self._unsent = b""  # the tail of what try_send began: it goes first, with the next send
         self.alive = True
         self.send([("open", settings)])
         try:
@@ -112,6 +119,7 @@ class FeedProcess:
         except FeedProcessError:
             self.alive = False
             self.end_now()
+            self._close_nonblocking()
             raise
 
     @property
@@ -129,18 +137,61 @@ class FeedProcess:
             raise FeedProcessError(f"the ROS 2/MCAP feed process did not start ({why})")
 
     def send(self, records: list) -> bool:
+        """Hand ``records`` on (after what ``try_send`` left unsent), waiting while the pipe
+        is full; False once the child is gone."""
         if not self.alive:
             return False
-        data = pickle.dumps(records, protocol=pickle.HIGHEST_PROTOCOL)
+        data, self._unsent = self._unsent + (self._framed(records) if records else b""), b""
+        return self._write(data) if data else True
+
+    @property
+    def unsent(self) -> bool:
+        """``try_send`` wrote part of a batch: the next ``send`` (which may wait) writes the rest."""
+        return bool(self._unsent)
+
+    def try_send(self, records: list) -> bool:
+        """Hand ``records`` on without ever waiting (the SYNC loop's hand-off,
+        ``feed.Feed.pump``): a non-blocking write on the pipe. False leaves them unsent: the
+        pipe is full (the child is behind), a part of an earlier batch is still unsent, no
+        non-blocking write is possible, or the child is gone. True when the pipe took them,
+        possibly only in part (``unsent``: the rest is for the next ``send``). Must not run
+        beside another ``send``/``try_send`` (the feed's one consumer at a time)."""
+        if not self.alive or self._unsent or self._nonblocking is None:
+            return False
+        data = self._framed(records)
         try:
-            self._proc.stdin.write(_LENGTH.pack(len(data)) + data)  # type: ignore[union-attr]
+            n = os.write(self._nonblocking, data)
+        except BlockingIOError:
+            return False
+        except OSError as exc:  # BrokenPipeError: the child is gone
+            self._gone(exc)
+            return False
+        self._unsent = data[n:]
+        return True
+
+    @staticmethod
+    def _framed(records: list) -> bytes:
+        data = pickle.dumps(records, protocol=pickle.HIGHEST_PROTOCOL)
+        return _LENGTH.pack(len(data)) + data
+
+    def _write(self, data: bytes) -> bool:
+        try:
+            self._proc.stdin.write(data)  # type: ignore[union-attr]
             self._proc.stdin.flush()  # type: ignore[union-attr]
         except (OSError, ValueError) as exc:  # BrokenPipeError: the child is gone
-            self.alive = False
-            log.error("ROS 2/MCAP feed process gone (%s, status %s): publishing and recording stopped",
-                      exc, self._proc.poll())
+            self._gone(exc)
             return False
         return True
+
+    def _close_nonblocking(self) -> None:
+        fd, self._nonblocking = self._nonblocking, None
+        if fd is not None:
+            os.close(fd)
+
+    def _gone(self, exc: Exception) -> None:
+        self.alive = False
+        log.error("ROS 2/MCAP feed process gone (%s, status %s): publishing and recording stopped",
+                  exc, self._proc.poll())
 
     def end_now(self) -> int:
         """End the child now: ``STOP_NOW`` (it finishes its open file as far as it got,
@@ -164,6 +215,7 @@ class FeedProcess:
             self._proc.stdin.close()  # type: ignore[union-attr]
         except OSError:  # the child is gone: what was buffered cannot be flushed
             pass
+        self._close_nonblocking()  # the input ends when the last writing end is closed
         try:
             return self._proc.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
