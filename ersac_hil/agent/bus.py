@@ -394,11 +394,14 @@ class AgentBus:
         answer (an abort none); one it gave up waiting for awaits nothing any more, so its late
         answer, like any stray one, is a bus fault and never the answer of a later request."""
         send_request = client.send_request
+        asked = [b""]  # the multiplexer (index, sub-index) of the transfer under way
 
         def send(request) -> None:  # noqa: ANN001
             if request[0] & 0xE0 != REQUEST_ABORTED:
                 with self._cond:
                     self._sdo_unanswered[name] = self._sdo_unanswered.get(name, 0) + 1
+            if request[0] >> 5 in _SDO_INITIATE:
+                asked[0] = bytes(request[1:4])
             send_request(request)
 
         def wait() -> bytes:
@@ -417,6 +420,10 @@ class AgentBus:
                 raise BusFault(f"an SDO answer from {name} of {len(response)} bytes (an SDO frame has "
                                f"{SDO_FRAME_BYTES})")
             if response[0] == RESPONSE_ABORTED:
+                if bytes(response[1:4]) != asked[0]:  # the abort of another transfer: not ours
+                    index, sub = int.from_bytes(response[1:3], "little"), response[3]
+                    raise BusFault(f"an SDO abort from {name} for 0x{index:04X}:{sub}, another transfer "
+                                   "than the one asked (a second SDO client on the bus?)")
                 raise SdoAbortedError(int.from_bytes(response[4:8], "little"))
             return response
         return send, wait
@@ -608,6 +615,11 @@ class AgentBus:
             self.net.check()
         except Exception as exc:
             raise BusDown(f"CAN receive thread stopped: {exc}") from exc
+
+
+_SDO_INITIATE = (1, 2, 5, 6)
+"""Client command specifiers that name a transfer's multiplexer (CiA 301: initiate download,
+initiate upload, block download, block upload); a server's abort carries the same one."""
 
 
 def _receivable(devices: Iterable[Device]) -> frozenset[int]:

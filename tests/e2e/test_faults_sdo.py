@@ -38,10 +38,14 @@ class Robot:
         self.rogue = open_network(config)
         self.answered: list[bytes] = []
 
-    def episode(self, index: int | None = None, same_object: bool = False):  # noqa: ANN201
+    def episode(self, index: int | None = None, same_object: bool = False,  # noqa: ANN201
+                abort: bool = False):
         """One bracing episode; the first SDO request of the test bench for ``index`` (any
         command) also answered by the rogue, before the test bench's own answer: for the next
-        object (``index + 1``), or for that object with another value (``same_object``)."""
+        object (``index + 1``), or for that object with another value (``same_object``); with
+        ``abort``, the answer is an abort (general error) of the next object: what the test bench
+        itself sends when a second client's broken request reaches it just before the agent's
+        (canopen's server aborts with the multiplexer of its last transfer)."""
         real = list(self.robot.network.subscribers[SERVER])
 
         def rogue(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -50,7 +54,8 @@ class Robot:
                 return
             command = {0x40: 0x43, 0x20: 0x60}[data[0] & 0xE0]
             other = asked if same_object else asked + 1
-            answer = bytes([command, *other.to_bytes(2, "little"), data[3], 0x5A, 0, 0, 0])
+            payload = (0x08000000).to_bytes(4, "little") if abort else bytes([0x5A, 0, 0, 0])
+            answer = bytes([0x80 if abort else command, *other.to_bytes(2, "little"), data[3], *payload])
             self.answered.append(answer)
             self.rogue.bus.send(can.Message(arbitration_id=cobid.sdo_tx(TESTBENCH.node_id), data=answer,
                                             is_extended_id=False))
@@ -96,4 +101,22 @@ def test_a_second_sdo_server_faults_the_episode_it_answers_in_and_no_other(robot
     assert hit.total_cost is None and hit.cost_terms == {}
     after = robot.episode()
     assert after.status == "ok", (after.status, after.detail)  # nothing of it carried on
+    assert after.total_cost == calm.total_cost
+
+
+@pytest.mark.parametrize("phase", PHASES)
+def test_an_abort_of_another_transfer_faults_the_episode_and_is_no_refusal(robot, phase):
+    """An abort for an object the agent did not ask is a bus fault, never "the test bench
+    refused" (which would end the episode as an error reply and stop the run): seen beside CPU
+    hogs, when a rogue frame to the test bench's SDO server came just before the agent's
+    configuration request."""
+    calm = robot.episode()
+    assert calm.status == "ok", calm.detail
+    hit = robot.episode(PHASES[phase], abort=True)
+    assert robot.answered, "the rogue never answered"
+    assert hit.status.startswith("fault_"), (hit.status, hit.detail)
+    assert "another transfer" in hit.detail, hit.detail
+    assert hit.total_cost is None and hit.cost_terms == {}
+    after = robot.episode()
+    assert after.status == "ok", (after.status, after.detail)
     assert after.total_cost == calm.total_cost
