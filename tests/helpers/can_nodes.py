@@ -26,7 +26,7 @@ from protocol.can import cobid
 from protocol.can.devices import DEVICES, Device, object_dictionary
 from protocol.can.busconfig import BusConfig, open_network
 
-from helpers.timing import patient_sdo
+from helpers.timing import PATIENCE_S, patient_sdo
 from helpers.waiting import DEFAULT_TIMEOUT_S
 
 Frame = tuple[int, bytes]
@@ -53,14 +53,33 @@ class ReferenceNodes:
 
 
 class Master:
-    """The test's CANopen master: a ``RemoteNode`` per device on its own network."""
+    """The test's CANopen master: a ``RemoteNode`` per device on its own network, ready once it
+    has heard every device's heartbeat (as the agent's ``AgentBus.wait_for_nodes``).
+
+    Over Zenoh that wait is what makes the first command arrive: a session sends a frame only
+    to the subscriptions it has been told of, so a frame sent right after the bus opened can
+    miss buses that are already there (47 of 100 sends right after the receiving bus opened,
+    none after the sender heard it; the NMT and SDO tests' rare "never answered" beside CPU
+    hogs). A node's heartbeat travels after its subscription, so hearing it proves the master's
+    frames reach that node, and its answers the master."""
 
     def __init__(self, bus_config: BusConfig, devices: Iterable[Device]) -> None:
         self.network = open_network(bus_config)
         self.devices = {d.name: d for d in devices}
-        self.nodes = {d.name: self.network.add_node(d.node_id, object_dictionary(d))
-                      for d in self.devices.values()}
-        patient_sdo(self.nodes.values())  # an answer late on a loaded machine is still an answer
+        log = heartbeats(self.network, self.devices.values())
+        try:
+            self.nodes = {d.name: self.network.add_node(d.node_id, object_dictionary(d))
+                          for d in self.devices.values()}
+            patient_sdo(self.nodes.values())  # an answer late on a loaded machine is still an answer
+            for d in self.devices.values():
+                beat = cobid.heartbeat(d.node_id)
+                log.wait_for(lambda frames, beat=beat: any(f[0] == beat for f in frames), PATIENCE_S,
+                             what=f"{d.name}'s heartbeat at the test's master")
+        except BaseException:
+            self.network.disconnect()
+            raise
+        finally:
+            log.close()
 
     def close(self) -> None:
         self.network.disconnect()
