@@ -258,8 +258,9 @@ def serve(stream: BinaryIO, ready: BinaryIO | None = None) -> None:
     try:
         files = McapEpisodes(settings.record, settings.namespace, settings.robot) if settings.record else None
         if settings.ros2 is not None:
-            from ersac_hil.zenoh_session import open_session, resolve_config
-            config = resolve_config(settings.zenoh, mode=settings.zenoh_mode)
+            from ersac_hil.zenoh_session import open_session, resolve_config, tolerate_bursts
+            # live topics drop like rmw_zenoh's (DROP), but not the bursts of a feed catching up
+            config = tolerate_bursts(resolve_config(settings.zenoh, mode=settings.zenoh_mode))
             config.insert_json5("listen/endpoints", "[]")  # the agent listens where it was told to
             session = open_session(config, insecure=settings.zenoh.insecure)
             node = Ros2Node.declare(session, settings.ros2, settings.robot)

@@ -27,7 +27,7 @@ embedded router), ``errors``; this package's face is the API above.
 """
 
 from .args import add_zenoh_arguments, zenoh_argv, zenoh_options
-from .config import MODES, ZenohOptions, check_config, make_config, resolve_config
+from .config import BURSTS, MODES, ZenohOptions, check_config, make_config, resolve_config, tolerate_bursts
 from .endpoints import (DEFAULT_ENDPOINT, SECURE_PROTOCOLS, check_endpoint, free_tcp_port, is_loopback,
                         loopback_endpoint, split_endpoint)
 from .errors import EndpointError, ZenohConfigError, ZenohSessionError, zenoh_reason
@@ -36,6 +36,8 @@ from .session import open_session, session_scope
 
 __all__ = [
     "MODES",
+    "BURSTS",
+    "tolerate_bursts",
     "DEFAULT_ENDPOINT",
     "SECURE_PROTOCOLS",
     "ZenohOptions",

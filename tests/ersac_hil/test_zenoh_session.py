@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ersac_hil.zenoh_session import (
+    BURSTS,
     DEFAULT_ENDPOINT,
     EmbeddedRouter,
     ZenohOptions,
@@ -26,6 +27,7 @@ from ersac_hil.zenoh_session import (
     ZenohSessionError,
     check_config,
     check_endpoint,
+    tolerate_bursts,
     free_tcp_port,
     is_loopback,
     loopback_endpoint,
@@ -34,6 +36,7 @@ from ersac_hil.zenoh_session import (
     resolve_config,
     session_scope,
 )
+from ersac_hil.zenoh_session.config import json_at
 from helpers.waiting import wait_for_match, wait_until
 from protocol.zenoh import (
     CriticPoint,
@@ -181,6 +184,19 @@ def test_resolve_config_defaults_flags_and_file(tmp_path):
     assert json.loads(routed.get_json("listen/endpoints")) == ["tcp/127.0.0.9:7002"]
     peer = resolve_config(ZenohOptions(config_file=path), mode="peer")
     assert json.loads(peer.get_json("listen/endpoints")) == ["tcp/127.0.0.9:7003"]
+
+
+def test_tolerate_bursts_raises_zenohs_defaults_and_keeps_what_a_file_chose(tmp_path):
+    queue_key, wait_key = "transport/link/tx/queue/size/data", "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+    plain = resolve_config()
+    assert (json_at(plain, queue_key), json_at(plain, wait_key)) == (2, 1000)  # Zenoh's defaults
+    raised = tolerate_bursts(resolve_config())
+    assert {key: json_at(raised, key) for key in BURSTS} == dict(BURSTS)
+    path = _write(tmp_path, "c.json5", """{ transport: { link: { tx: { queue: {
+      size: { data: 4 }, congestion_control: { drop: { wait_before_drop: 3000 } } } } } } }""")
+    chosen = tolerate_bursts(resolve_config(ZenohOptions(config_file=path)))
+    assert (json_at(chosen, queue_key), json_at(chosen, wait_key)) == (4, 3000)
+    assert json_at(chosen, "transport/link/tx/queue/size/control") == 2  # nothing else changes
 
 
 def test_the_connect_timeout_is_the_explicit_one_then_the_files_then_the_commands(tmp_path):
