@@ -6,10 +6,14 @@ agent's package never imports the simulator.
 """
 from __future__ import annotations
 
-import argparse
-import logging
-import os
-import sys
+from ersac_hil.lifecycle import note_early_interrupts, take_early
+
+note_early_interrupts()  # first: a Ctrl-C during the imports below is never lost (lifecycle)
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
 
 import ersac_hil
 from ersac_hil.cli_args import Parser, UsageError, fail, positive_float, positive_int, tcp_port
@@ -108,6 +112,9 @@ def _extensions():
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    early = take_early()
+    if early is not None:  # a Ctrl-C of the start-up that some finaliser swallowed
+        return 128 + early
     if argv[:1] == ["sim"]:  # everything after "sim" belongs to the simulator's own parser
         return _exec_sim(argv[1:])
     parser = build_parser()
@@ -123,6 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         return fail(prog, str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug or a broken machine: one line, -v for the traceback
+        early = take_early()
+        if early is not None:  # a Ctrl-C that an extension's import turned into its own error
+            return 128 + early
         if args.verbose:
             raise
         print(f"{prog}: {type(exc).__name__}: {exc} (run with -v for the traceback)", file=sys.stderr, flush=True)

@@ -10,6 +10,18 @@ stop; a second one, while that stop is under way, kills every process this one s
 (``kill_tree``: its descendants and their process groups, SIGKILL) and exits with 128 + N of
 the first at once. (``python -m firmware_sim`` cannot import this package and waits for its
 signals with ``signal.sigwait`` instead.)
+
+Before those handlers are in, Python's own SIGINT handler raises ``KeyboardInterrupt`` wherever
+the interpreter is, and where that is a finaliser or a weakref callback (the import machinery's
+module locks have one) the interpreter prints "Exception ignored" and goes on: a Ctrl-C during
+start-up was lost and the command ran to its end (seen: the demo interrupted 0.27 s after it
+started finished its five episodes with exit 0). :func:`note_early_interrupts`, the first thing
+``ersac_hil.cli`` does, keeps that behaviour but records the signal, and :func:`until_signal`
+(and ``cli.main``) stop at once for one recorded before them; ``cli.main`` also exits 128 + N,
+not 1, when the command failed with an error after such a SIGINT (an extension module whose
+import the ``KeyboardInterrupt`` hit says "ImportError: initialization failed"). A SIGINT while CPython itself
+initialises (before any module of ours runs) is the interpreter's "Fatal Python error:
+init_...", exit 1.
 """
 from __future__ import annotations
 
@@ -20,9 +32,34 @@ import threading
 from collections.abc import Callable
 from typing import Protocol
 
-__all__ = ["SIGNALS", "Service", "descendants", "kill_tree", "serve", "until_signal"]
+__all__ = ["SIGNALS", "Service", "descendants", "kill_tree", "note_early_interrupts", "serve", "take_early",
+           "until_signal"]
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_early: list[int] = []  # SIGINTs that came before until_signal's handlers (note_early_interrupts)
+
+
+def note_early_interrupts() -> None:
+    """Replace Python's default SIGINT handler by one that also records the signal (then raises
+    ``KeyboardInterrupt`` as before); an ignored SIGINT (a background job) stays ignored. Main
+    thread only; elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _early_interrupt)
+
+
+def _early_interrupt(signum, frame) -> None:  # noqa: ANN001
+    _early.append(signum)
+    raise KeyboardInterrupt
+
+
+def take_early() -> int | None:
+    """The first SIGINT recorded by :func:`note_early_interrupts` and not taken yet, or ``None``
+    (a ``KeyboardInterrupt`` that was swallowed on its way up)."""
+    first = _early[0] if _early else None
+    _early.clear()
+    return first
 
 
 class Service(Protocol):
@@ -89,6 +126,10 @@ def until_signal(main: Callable[[threading.Event], int], stop: threading.Event |
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in SIGNALS}
+    early = take_early()
+    if early is not None:  # it came before these handlers and was swallowed: stop now
+        received.append(early)
+        stop.set()
     try:
         code = main(stop)
     finally:

@@ -76,9 +76,11 @@ def test_a_signal_at_any_moment_of_start_up_or_shutdown_leaves_no_process(tmp_pa
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl",
            "PYTHONUNBUFFERED": "1", MARK: tag}
     out = tmp_path / uuid.uuid4().hex[:8]
-    proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "demo", "--episodes", "5", "--out", str(out)],
-                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, preexec_fn=_default_signals)
+    stderr = tmp_path / f"{tag}.err"
+    with open(stderr, "wb") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "ersac_hil.cli", "demo", "--episodes", "5", "--out", str(out)],
+                                cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err,
+                                start_new_session=True, preexec_fn=_default_signals)
     with group_killed_on_exit(proc):
         if children:
             wait_until(lambda: _children_started(tag, proc.pid) >= children or proc.poll() is not None,
@@ -94,9 +96,13 @@ def test_a_signal_at_any_moment_of_start_up_or_shutdown_leaves_no_process(tmp_pa
     # 128 + the first signal handled, or killed by it before the demo's handlers are in. With a
     # second signal either may be that one: two that arrive before Python runs either handler
     # are handled in signal-number order (CPython), and a start-up still in a C import when the
-    # first (SIGINT: KeyboardInterrupt) comes can be ended by the second's default action
+    # first (SIGINT: KeyboardInterrupt) comes can be ended by the second's default action. A
+    # SIGINT while CPython itself initialises, before any module of ours, is the interpreter's
+    # "Fatal Python error: init_...", exit 1 (nothing of ours can run then; ersac_hil.lifecycle)
     sent = {first} if second is None else {first, second[0]}
-    assert code in {128 + s for s in sent} | {-s for s in sent}, code
+    said = stderr.read_text(errors="replace")
+    in_init = signal.SIGINT in sent and "Fatal Python error: init_" in said
+    assert code in {128 + s for s in sent} | {-s for s in sent} | ({1} if in_init else set()), (code, said[-2000:])
     wait_until(lambda: not marked(tag), 60, what="every process of the tree gone")
     if second is None and (out / "stack.json").is_file():  # a forced exit leaves it as it was
         assert json.loads((out / "stack.json").read_text())["pids"] == {}

@@ -96,6 +96,51 @@ def test_one_signal_lets_main_finish_and_returns_128_plus_n(procs):
     assert proc.stdout.read().strip() == "cleaned up"
 
 
+SWALLOWED = """
+    import os, signal, sys, threading, time
+    from ersac_hil.lifecycle import note_early_interrupts, until_signal
+
+    note_early_interrupts()
+
+    class Finaliser:
+        def __del__(self):  # a SIGINT here is "Exception ignored": Python goes on
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)
+
+    Finaliser()
+    print("went on", flush=True)
+
+    def main(stop: threading.Event) -> int:
+        print("stop asked" if stop.is_set() else "not asked", flush=True)
+        return 0
+
+    sys.exit(until_signal(main) if sys.argv[1] == "until" else __import__("ersac_hil.cli").cli.main(["--version"]))
+"""
+
+
+@pytest.mark.parametrize("where", ["until", "cli"])
+def test_a_start_up_interrupt_that_a_finaliser_swallowed_still_stops_the_command(procs, where):
+    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SWALLOWED), where], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    procs.append(proc)
+    out, err = proc.communicate(timeout=60)
+    assert "Exception ignored" in err and "KeyboardInterrupt" in err  # Python itself swallowed it
+    assert proc.returncode == 128 + signal.SIGINT
+    assert out.split("\n")[:2] == (["went on", "stop asked"] if where == "until" else ["went on", ""])
+
+
+def test_an_ignored_sigint_stays_ignored(procs):
+    proc = _python("""
+        import signal
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        from ersac_hil.lifecycle import note_early_interrupts
+        note_early_interrupts()
+        print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN, flush=True)
+    """)
+    procs.append(proc)
+    assert _line(proc) == "True"
+
+
 def test_kill_tree_reaches_grandchildren_and_their_groups(procs):
     proc = _python(f"""
         import subprocess, sys, time
@@ -129,3 +174,31 @@ def test_a_child_dies_with_its_parent_even_ignoring_sigterm(procs, tmp_path):
     os.kill(proc.pid, signal.SIGKILL)  # no chance to stop its child
     proc.wait()
     wait_until(lambda: gone(child), what="the child killed by the kernel with its parent")
+
+
+def test_a_command_that_fails_after_a_start_up_interrupt_exits_130_not_1(monkeypatch, capsys):
+    """A KeyboardInterrupt in an extension module's import comes out as its ImportError; after a
+    recorded SIGINT that is the interrupt's exit, not a failure's."""
+    import argparse
+
+    from ersac_hil import cli, lifecycle
+
+    def command(args):
+        try:
+            lifecycle._early_interrupt(signal.SIGINT, None)  # what the handler does on SIGINT
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+
+    class Parser:
+        prog = "ersac-hil"
+
+        def parse_args(self, argv):
+            return argparse.Namespace(verbose=0, command="x", func=command)
+
+    monkeypatch.setattr(cli, "build_parser", Parser)
+    assert cli.main(["x"]) == 128 + signal.SIGINT
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(Parser, "parse_args", lambda self, argv: argparse.Namespace(
+        verbose=0, command="x", func=lambda args: int("not a number")))
+    assert cli.main(["x"]) == 1  # without one, an error is still an error
+    assert "ValueError" in capsys.readouterr().err
