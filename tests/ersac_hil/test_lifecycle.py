@@ -121,7 +121,9 @@ SWALLOWED = """
 @pytest.mark.parametrize("where", ["until", "cli"])
 def test_a_start_up_interrupt_that_a_finaliser_swallowed_still_stops_the_command(procs, where):
     proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SWALLOWED), where], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # a background job's
+    # children inherit SIGINT ignored, and Python keeps it so (the next test)
     procs.append(proc)
     out, err = proc.communicate(timeout=60)
     assert "Exception ignored" in err and "KeyboardInterrupt" in err  # Python itself swallowed it
