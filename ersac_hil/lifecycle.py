@@ -19,9 +19,9 @@ started finished its five episodes with exit 0). :func:`note_early_interrupts`, 
 ``ersac_hil.cli`` does, keeps that behaviour but records the signal, and :func:`until_signal`
 (and ``cli.main``) stop at once for one recorded before them; ``cli.main`` also exits 128 + N,
 not 1, when the command failed with an error after such a SIGINT (an extension module whose
-import the ``KeyboardInterrupt`` hit says "ImportError: initialization failed"). A SIGINT while CPython itself
-initialises (before any module of ours runs) is the interpreter's "Fatal Python error:
-init_...", exit 1.
+import the ``KeyboardInterrupt`` hit says "ImportError: initialization failed"). A SIGINT while
+CPython itself initialises (before any module of ours runs) is the interpreter's "Fatal Python
+error: init_...", exit 1.
 """
 from __future__ import annotations
 
