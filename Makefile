@@ -1,4 +1,4 @@
-# Two entry points, each bootstraps .venv from pyproject.toml.
+# Two entry points, each bootstraps .venv from pyproject.toml, at the versions of constraints.txt.
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -10,10 +10,10 @@ export MUJOCO_GL ?= egl
 
 .PHONY: demo test wheel-smoke bench venv clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[test,bench]'
 	touch $(STAMP)
 
 venv: $(STAMP)

@@ -17,7 +17,7 @@ echo "wheel-smoke: built $(basename "$wheel") in $((SECONDS - start)) s"
 
 "$python" -m venv "$work/venv"
 "$work/venv/bin/python" -m pip install --quiet --upgrade pip
-"$work/venv/bin/python" -m pip install --quiet "$wheel"
+"$work/venv/bin/python" -m pip install --quiet -c "$root/constraints.txt" "$wheel"
 echo "wheel-smoke: installed into a fresh venv in $((SECONDS - start)) s"
 
 cd "$work"   # nothing of the source tree is importable from here
