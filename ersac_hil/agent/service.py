@@ -263,6 +263,7 @@ class AgentService:
             self._running = False
 
     def _run_episode(self, plan) -> EpisodeResult | ErrorReply:
+        log.info("episode %s %s: started", plan.request.episode_id, plan.request.task)
         if self.recorder is not None:
             self.recorder.begin(plan.request.episode_id)
         if self.feed is not None:

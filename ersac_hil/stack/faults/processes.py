@@ -2,6 +2,7 @@
 router restarted, the daemon's disk full, a partition between the two namespaces."""
 from __future__ import annotations
 
+import re
 import signal
 import time
 
@@ -78,10 +79,12 @@ def _cut_mid_episode(rig: Rig, after: int) -> tuple[History, float]:
     the link is down, and when it went down (``time.monotonic()``).
 
     An episode takes a few tenths of a second, about what starting ``ip`` can take on a loaded
-    machine: the attempt seen running may have ended before the link went down. The cut is kept
-    only if that attempt still runs once the link is down (not stored ok, not answered by the
-    agent); else the link goes up at once (a cut of milliseconds the TCP links bridge) and the
-    next episode is tried."""
+    machine: the attempt seen running may have ended before the link went down, or not have
+    begun - the store marks it pending when the daemon sends the query, which on a loaded
+    machine can still be on its way. The cut is kept only if the agent had started that attempt
+    and it still runs once the link is down (its "started" line logged, no answer logged, not
+    stored ok); else the link goes up at once (a cut of milliseconds the TCP links bridge) and
+    the next episode is tried."""
     assert rig.netns is not None
     while True:
         running = [(idx, attempt) for idx, attempt, status in mid_episode(rig, after).attempts if status == "pending"]
@@ -90,7 +93,8 @@ def _cut_mid_episode(rig: Rig, after: int) -> tuple[History, float]:
         during = history(rig.db)
         assert during is not None
         answered = rig.output("agent")
-        if all((idx, attempt, "pending") in during.attempts and f".{idx:05d}.{attempt} {TASK}:" not in answered
+        if all((idx, attempt, "pending") in during.attempts and f".{idx:05d}.{attempt} {TASK}: started" in answered
+               and not re.search(rf"\.{idx:05d}\.{attempt} {TASK}: \w+ cost", answered)
                for idx, attempt in running):
             return during, t_fault
         rig.netns.link(True, rig.cut_off)
