@@ -14,9 +14,8 @@ false alarm would take most of the SYNCs before one being late by more than the 
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 WINDOW = 20
 """How many SYNCs before one give its floor."""
@@ -26,7 +25,7 @@ QUANTILE = 0.2
 """The floor: this quantile of the ``WINDOW`` phases before (the 4th lowest of 20)."""
 
 
-def ahead_of_schedule(stamps: Sequence[float], period_s: float, tolerance_s: float = 1e-3) -> list[int]:
+def ahead_of_schedule(stamps: ArrayLike, period_s: float, tolerance_s: float = 1e-3) -> list[int]:
     """The indices of the SYNCs sent more than ``tolerance_s`` ahead of the schedule.
 
     Args:
@@ -37,7 +36,8 @@ def ahead_of_schedule(stamps: Sequence[float], period_s: float, tolerance_s: flo
     (phases falling ``0.1 * period_s`` a cycle: the floor 4 cycles back, 2 ms above at 5 ms)
     are flagged from the ``SETTLE``-th SYNC on.
     """
-    phase = np.asarray(stamps, dtype=float) - np.arange(len(stamps)) * period_s
+    stamps = np.asarray(stamps, dtype=float)
+    phase = stamps - np.arange(len(stamps)) * period_s
     early = []
     for k in range(SETTLE, len(phase)):
         floor = np.quantile(phase[max(0, k - WINDOW):k], QUANTILE, method="lower")

@@ -24,6 +24,7 @@ from helpers.timing import PATIENCE_S, PATIENT, patient_controllers, patient_sdo
 from helpers.waiting import wait_until
 from protocol.can import cobid
 from protocol.can.busconfig import BusConfig, open_bus
+from protocol.can.devices import SYNC_PERIOD_S
 from protocol.can.objects import Scenario
 from protocol.zenoh import EpisodeRequest
 
@@ -191,15 +192,12 @@ def test_realtime_episode_paces_sync_by_the_wall_clock():
     # so start a new schedule later (beside two CPU hogs the first cycle did, and SYNC 0 was
     # "early" against the later ones)
     assert len(syncs) == 400
-    early = ahead_of_schedule(syncs, 0.005)
+    early = ahead_of_schedule(syncs, SYNC_PERIOD_S)
     assert not early, f"SYNCs sent ahead of the period's schedule: {early[:10]}"
     # the real-time figures: each SYNC's lateness against its slot, the host's time per cycle
     for name in ("sync_jitter", "host_compute"):
         p50, p99, worst = (r.telemetry[f"{name}_{q}_ms"] for q in ("p50", "p99", "max"))
         assert 0.0 <= p50 <= p99 <= worst, name
-
-
-PERIOD_S = 0.005
 
 
 @given(late=st.lists(st.tuples(st.integers(0, 399), st.floats(0.0, 0.03)), max_size=15),
@@ -208,20 +206,20 @@ PERIOD_S = 0.005
 def test_the_schedule_check_passes_late_sends_and_later_schedules(late, rephase, jitter, start):
     """What the pacer may do on a loaded machine - a few sends late by up to 30 ms, the schedule
     started again up to 50 ms later - is never "ahead"."""
-    slot = start + np.arange(400) * PERIOD_S
+    slot = start + np.arange(400) * SYNC_PERIOD_S
     for k, jump in rephase:
         slot[k:] += jump
     sent = slot + np.asarray(jitter)
     for k, lateness in late:
         sent[k] += lateness
-    assert ahead_of_schedule(list(sent), PERIOD_S) == []
+    assert ahead_of_schedule(sent, SYNC_PERIOD_S) == []
 
 
-@given(spacing=st.floats(0.0005, 0.9 * PERIOD_S), jitter=st.lists(st.floats(0.0, 2e-4), min_size=400, max_size=400))
+@given(spacing=st.floats(0.0005, 0.9 * SYNC_PERIOD_S), jitter=st.lists(st.floats(0.0, 2e-4), min_size=400, max_size=400))
 def test_the_schedule_check_flags_syncs_faster_than_the_period(spacing, jitter):
     """Lock-step (a SYNC as soon as the answers are in) or a period 10 % short is flagged."""
     sent = np.arange(400) * spacing + np.asarray(jitter)
-    assert len(ahead_of_schedule(list(sent), PERIOD_S)) >= 0.9 * (400 - SETTLE)
+    assert len(ahead_of_schedule(sent, SYNC_PERIOD_S)) >= 0.9 * (400 - SETTLE)
 
 
 def test_lock_step_episodes_carry_no_real_time_figures(rig):
